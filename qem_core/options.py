@@ -1,0 +1,97 @@
+"""Build options: one frozen record with safe defaults, validated once, lowered to scalars
+for the kernels."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+from typing import Any, Literal
+
+from .errors import InvalidOptionsError
+
+__all__ = ["BuildOptions", "WEIGHTING_CODES", "ERROR_MODE_CODES"]
+
+Weighting = Literal["none", "area", "volume"]
+ErrorMode = Literal["additive", "exact"]
+
+# Kernel codes: the kernels take integers, not strings.
+WEIGHTING_CODES = {"none": 0, "area": 1, "volume": 2}
+ERROR_MODE_CODES = {"additive": 0, "exact": 1}
+
+
+@dataclass(frozen=True)
+class BuildOptions:
+    """How `qem_core.build` simplifies.
+
+    weighting : "none" | "area" | "volume"
+        Weight of each face's plane quadric: 1 (Garland-Heckbert), its area, or its area
+        squared ("volume": Kim, Kim and Ko show volume optimisation is distance
+        optimisation weighted by |N|^2).
+    error_mode : "additive" | "exact"
+        "additive" contracts with Q_c = Q_a + Q_b; "exact" keeps quadrics on edges and
+        triangles and uses inclusion-exclusion Q_c = Q_a + Q_b - Q_ab so each original
+        plane is counted once (Edelsbrunner).
+    boundary_weight : float >= 0
+        Weight of the plane through each open-border edge, perpendicular to its face,
+        relative to a face plane of the same size. 0 lets borders erode.
+    preserve_topology : bool
+        Refuse contractions that break the link condition, pinch or close a border, or
+        shrink a component below a tetrahedron. Only False with pair contraction makes
+        sense.
+    max_face_turn_deg : float in (0, 180]
+        A contraction is refused if it turns a surviving face's normal by more than this
+        many degrees (from its normal before the contraction) or by more than 90 degrees
+        from the normal of the original face it came from. 180 disables the per-step part.
+    pair_threshold : float >= 0
+        Garland's t, as a fraction of the bounding-box diagonal: vertex pairs closer than
+        this that share no edge are contraction candidates too, and may join separate
+        parts. 0 (the default) disables pair contraction.
+    merge_coincident : bool
+        Weld vertices with exactly equal coordinates before building (STL soups).
+    """
+
+    weighting: Weighting = "area"
+    error_mode: ErrorMode = "additive"
+    boundary_weight: float = 1.0
+    preserve_topology: bool = True
+    max_face_turn_deg: float = 75.0
+    pair_threshold: float = 0.0
+    merge_coincident: bool = True
+
+    def __post_init__(self) -> None:
+        if self.weighting not in WEIGHTING_CODES:
+            raise InvalidOptionsError(
+                f"weighting={self.weighting!r} is not one of {sorted(WEIGHTING_CODES)}"
+            )
+        if self.error_mode not in ERROR_MODE_CODES:
+            raise InvalidOptionsError(
+                f"error_mode={self.error_mode!r} is not one of {sorted(ERROR_MODE_CODES)}"
+            )
+        _check_range("boundary_weight", self.boundary_weight, 0.0, 1e6)
+        _check_range("max_face_turn_deg", self.max_face_turn_deg, 1e-6, 180.0)
+        _check_range("pair_threshold", self.pair_threshold, 0.0, 1.0)
+        for name in ("preserve_topology", "merge_coincident"):
+            if not isinstance(getattr(self, name), bool):
+                raise InvalidOptionsError(f"{name} must be true or false")
+
+    @classmethod
+    def from_mapping(cls, values: dict[str, Any] | None) -> BuildOptions:
+        """Build from a plain dict, refusing unknown keys with the list of known ones."""
+        values = dict(values or {})
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise InvalidOptionsError(
+                f"unknown build option(s) {unknown}; known options are {sorted(known)}"
+            )
+        return cls(**values)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def _check_range(name: str, value: float, low: float, high: float) -> None:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise InvalidOptionsError(f"{name} must be a number, got {value!r}")
+    if not math.isfinite(value) or not low <= value <= high:
+        raise InvalidOptionsError(f"{name}={value!r} is outside [{low}, {high}]")

@@ -1,0 +1,12 @@
+"""Benchmarks of qem-lod against peer simplifiers.
+
+Entry points (run from the repository root):
+
+- ``python -m bench.simplify_quality``: geometric error at equal vertex count, qem-lod's
+  progressive mesh against meshoptimizer, fast_simplification, pyfqmr, pymeshlab and open3d.
+- ``python -m bench.build_speed``: time and peak memory of the whole qem-lod forest build,
+  beside one meshoptimizer and one pymeshlab simplification of the same mesh.
+
+Every timed call runs in a child process (`bench.measure`), so peak RSS is the call's own.
+See bench/README.md.
+"""

@@ -91,6 +91,8 @@ def measure_in_child(
     *,
     runs: int = 1,
     preload: Sequence[str] = (),
+    before: Callable[..., Any] | None = None,
+    before_args: Sequence[Any] = (),
     then: Callable[..., Any] | None = None,
     then_args: Sequence[Any] = (),
     env: Mapping[str, str] | None = None,
@@ -98,10 +100,13 @@ def measure_in_child(
 ) -> ChildMeasurement:
     """Run `function(*args)` `runs` times in a fresh Python process and measure it.
 
-    function, then : top-level functions of importable modules (pickled by reference).
+    function, before, then : top-level functions of importable modules (pickled by
+        reference).
     args : pickled to the child; numpy arrays travel as they are.
     preload : module names imported in the child before the clock starts (the lazy
         imports of an adapter, e.g. "pymeshlab"), so import time is not counted.
+    before : called untimed with `before_args` after the imports and before the clock
+        starts, e.g. to let a JIT compile on a small input first.
     then : called untimed on the last run's result, in the child, with `then_args`; its
         return value is what comes back. Use it for results that cannot be pickled or are
         too large to send (e.g. a progressive mesh, from which only some levels are
@@ -114,7 +119,7 @@ def measure_in_child(
     """
     if runs < 1:
         raise ValueError(f"runs={runs} must be at least 1")
-    for named in (function, then):
+    for named in (function, before, then):
         if named is not None and getattr(named, "__module__", "__main__") == "__main__":
             raise ValueError(
                 f"{named!r} is defined in __main__; move it to a module under bench/ so "
@@ -130,6 +135,8 @@ def measure_in_child(
         "args": tuple(args),
         "runs": int(runs),
         "preload": tuple(preload),
+        "before": before,
+        "before_args": tuple(before_args),
         "then": then,
         "then_args": tuple(then_args),
     }
@@ -199,6 +206,8 @@ def _reset_peak_rss() -> bool:
 def _run_request(request: dict[str, Any]) -> dict[str, Any]:
     for module_name in request["preload"]:
         importlib.import_module(module_name)
+    if request["before"] is not None:
+        request["before"](*request["before_args"])
     function, args = request["function"], request["args"]
     gc.collect()
     peak_reset = _reset_peak_rss()

@@ -21,6 +21,7 @@ __all__ = [
     "count_referenced",
     "load_bench_mesh",
     "target_counts",
+    "warm_up_mesh",
 ]
 
 # The repository sits beside the shared folder: /work/main and /work/shared.
@@ -118,3 +119,32 @@ def target_counts(mesh: BenchMesh, fraction: float) -> tuple[int, int]:
     target_vertices = max(4, round(fraction * mesh.n_referenced))
     target_faces = max(4, round(mesh.n_faces * target_vertices / mesh.n_referenced))
     return target_vertices, target_faces
+
+
+def warm_up_mesh() -> tuple[np.ndarray, np.ndarray]:
+    """A 22-vertex, 26-face mesh for warm-up calls, never for figures: a closed part (an
+    octahedron) and an open part (a 4 x 4 grid), so code for both gets loaded or compiled.
+
+    Returns (vertices (22, 3) float64, faces (26, 3) int32).
+    """
+    octahedron_vertices = np.array(
+        [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=np.float64
+    )
+    octahedron_faces = np.array(
+        [[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]]
+    )
+    side = 4
+    grid_x, grid_y = np.meshgrid(np.arange(side, dtype=np.float64), np.arange(side))
+    grid_vertices = np.column_stack(
+        [grid_x.ravel() + 3.0, grid_y.ravel(), 0.1 * np.sin(grid_x.ravel() * grid_y.ravel())]
+    )
+    corner = (np.arange(side - 1)[:, None] * side + np.arange(side - 1)[None, :]).ravel()
+    grid_faces = np.concatenate(
+        [
+            np.column_stack([corner, corner + 1, corner + side + 1]),
+            np.column_stack([corner, corner + side + 1, corner + side]),
+        ]
+    )
+    vertices = np.concatenate([octahedron_vertices, grid_vertices])
+    faces = np.concatenate([octahedron_faces, grid_faces + len(octahedron_vertices)])
+    return vertices, faces.astype(np.int32)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .meshes import compact_referenced
+from .meshes import compact_referenced, warm_up_mesh
 
 __all__ = [
     "PEERS",
@@ -34,6 +34,7 @@ __all__ = [
     "simplify_pyfqmr",
     "simplify_pymeshlab",
     "simplify_pymeshlab_quality",
+    "warm_up_peer",
 ]
 
 # meshoptimizer's target_error is relative to the mesh extent (1.0 = the whole mesh), so
@@ -165,3 +166,9 @@ PEERS: dict[str, Peer] = {
         Peer("open3d", simplify_open3d, ("open3d",)),
     )
 }
+
+
+def warm_up_peer(simplify: Callable[[np.ndarray, np.ndarray, int], tuple]) -> None:
+    """One untimed call of a peer adapter on `bench.meshes.warm_up_mesh`."""
+    vertices, faces = warm_up_mesh()
+    simplify(vertices, faces, len(faces) // 2)

@@ -176,11 +176,12 @@ def _peer_counts_by_fraction(peer_rows: Sequence[QualityRow]) -> dict[float, lis
 
 
 def _compare_with_peers(row: QualityRow, peer_rows: Sequence[QualityRow]) -> None:
-    """Fill a qem-lod row's ratios against the best peers at exactly its vertex count."""
+    """Fill a qem-lod row's ratios against the best peers that produced the vertex count
+    this level was asked for (its status says so if the level served another)."""
     rivals = [
         peer
         for peer in peer_rows
-        if peer.fraction == row.fraction and peer.ok and peer.out_vertices == row.out_vertices
+        if peer.fraction == row.fraction and peer.ok and peer.out_vertices == row.target_vertices
     ]
     if not rivals or row.hausdorff is None:
         return

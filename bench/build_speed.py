@@ -1,0 +1,331 @@
+"""Time and memory of the whole qem-lod forest build, beside single peer simplifications.
+
+    python -m bench.build_speed [--mesh dragon.ply] [--runs 3] [--fraction 0.02]
+        [--qem-option name=value ...] [--timeout SECONDS]
+
+Every run is a fresh child process (`bench.measure.measure_in_child`); the clock covers
+the build call (or the peer's simplify call) alone. qem-lod is measured three ways:
+
+- **cold**: once, with NUMBA_CACHE_DIR pointing at an empty temporary folder, so the
+  build compiles every kernel: compile + run.
+- **warm cache**: --runs runs with that folder now filled: loading the cached machine
+  code + run. What a fresh worker process pays for its first build.
+- **hot**: --runs runs, each after an untimed build of a tiny mesh in the same process
+  (`bench.qem_lod.warm_up_build`): the run alone, the figure to set against the peers,
+  whose code is compiled ahead of time and loaded by an untimed warm-up call too.
+
+Numba compile time is reported as cold - median(warm cache). The peers are
+meshoptimizer and PyMeshLab (default options), each simplifying the same mesh once to
+--fraction of its referenced vertices, --runs runs. Runs are interleaved (qem warm, qem
+hot, meshoptimizer, pymeshlab, then again) so slow drifts of the machine hit all alike.
+
+Writes bench/results/build-speed.md and merges the mesh's entry into
+bench/results/build-speed.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from collections.abc import Sequence
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from . import qem_lod
+from .machine import describe_machine, machine_header_lines
+from .measure import ChildCallError, ChildMeasurement, measure_in_child, median_of_runs
+from .meshes import DEFAULT_MESH_DIR, BenchMesh, count_referenced, load_bench_mesh, target_counts
+from .peers import PEERS, warm_up_peer
+from .report import (
+    RESULTS_DIR,
+    format_mib,
+    format_ms,
+    format_ratio,
+    markdown_table,
+    read_json,
+    write_json,
+)
+
+__all__ = ["main", "measure_build_speed"]
+
+PEER_NAMES = ("meshoptimizer", "pymeshlab")
+DEFAULT_FRACTION = 0.02
+
+
+class _Series:
+    """Runs of one kind, each a fresh child: times (s), peak and increase of RSS (bytes)."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self.times_s: list[float] = []
+        self.peak_rss_bytes = 0
+        self.rss_increase_bytes = 0
+        self.status = "ok"
+        self.detail: dict[str, Any] = {}
+
+    def add(self, measured: ChildMeasurement) -> None:
+        self.times_s.extend(measured.times_s)
+        self.peak_rss_bytes = max(self.peak_rss_bytes, measured.peak_rss_bytes)
+        self.rss_increase_bytes = max(self.rss_increase_bytes, measured.rss_increase_bytes)
+
+    def fail(self, error: Exception) -> None:
+        lines = [line for line in str(error).splitlines() if line.strip()]
+        self.status = "failed: " + (lines[-1].strip() if lines else type(error).__name__)
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok" and bool(self.times_s)
+
+    @property
+    def median_s(self) -> float | None:
+        return median_of_runs(self.times_s) if self.ok else None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "status": self.status,
+            "times_s": self.times_s,
+            "median_s": self.median_s,
+            "peak_rss_bytes": self.peak_rss_bytes or None,
+            "rss_increase_bytes": self.rss_increase_bytes if self.ok else None,
+            **self.detail,
+        }
+
+
+def _measure_into(series: _Series, function, args, **measure_options) -> None:
+    if series.status != "ok":
+        return  # a failed series is not retried
+    try:
+        measured = measure_in_child(function, args, **measure_options)
+    except ChildCallError as error:
+        series.fail(error)
+        return
+    series.add(measured)
+    if isinstance(measured.result, dict):
+        series.detail.update(measured.result)
+    elif isinstance(measured.result, tuple):
+        vertices, faces = measured.result
+        series.detail.update(out_vertices=count_referenced(faces), out_faces=int(len(faces)))
+
+
+def measure_build_speed(
+    mesh: BenchMesh,
+    option_values: qem_lod.OptionValues,
+    runs: int,
+    fraction: float,
+    timeout_s: float | None,
+    qem_note: str | None,
+) -> dict[str, Any]:
+    """All series for one mesh; returns the JSON entry (see the module docstring)."""
+    build_args = (mesh.vertices, mesh.faces, option_values)
+    _, target_faces = target_counts(mesh, fraction)
+    label = qem_lod.variant_label(option_values)
+    cold = _Series(f"{label} cold (compile + run)")
+    warm = _Series(f"{label} warm cache (cache load + run)")
+    hot = _Series(f"{label} hot (run alone)")
+    peers = {name: _Series(f"{name} to {fraction:g}") for name in PEER_NAMES}
+    qem_series = (cold, warm, hot)
+    if qem_note is not None:
+        for series in qem_series:
+            series.status = f"skipped: {qem_note}"
+    with tempfile.TemporaryDirectory(prefix="qem-bench-numba-") as cache_dir:
+        qem_options = {
+            "preload": ("qem_core",),
+            "then": qem_lod.describe_progressive_mesh,
+            "env": {"NUMBA_CACHE_DIR": cache_dir},
+            "timeout_s": timeout_s,
+        }
+        _measure_into(cold, qem_lod.build_progressive_mesh, build_args, **qem_options)
+        _progress(f"{mesh.name} {cold.name}: {format_ms(cold.median_s)} ms")
+        for run in range(runs):
+            _measure_into(warm, qem_lod.build_progressive_mesh, build_args, **qem_options)
+            _measure_into(
+                hot,
+                qem_lod.build_progressive_mesh,
+                build_args,
+                before=qem_lod.warm_up_build,
+                before_args=(option_values,),
+                **qem_options,
+            )
+            for name, series in peers.items():
+                peer = PEERS[name]
+                _measure_into(
+                    series,
+                    peer.simplify,
+                    (mesh.vertices, mesh.faces, target_faces),
+                    preload=peer.modules,
+                    before=warm_up_peer,
+                    before_args=(peer.simplify,),
+                    timeout_s=timeout_s,
+                )
+            _progress(
+                f"{mesh.name} run {run + 1}/{runs}: "
+                + ", ".join(
+                    f"{s.name} {format_ms(s.times_s[-1] if s.ok else None)} ms"
+                    for s in (warm, hot, *peers.values())
+                )
+            )
+    compile_s = None
+    if cold.ok and warm.ok:
+        compile_s = cold.median_s - warm.median_s
+    ratios = {}
+    for qem_series_name, series in (("warm_cache", warm), ("hot", hot)):
+        for name, peer_series in peers.items():
+            if series.ok and peer_series.ok:
+                ratios[f"{qem_series_name}/{name}"] = series.median_s / peer_series.median_s
+    return {
+        "mesh": mesh.name,
+        "measured_at": datetime.now(UTC).isoformat(timespec="seconds"),
+        "machine": describe_machine(),
+        "input": {
+            "stored_vertices": mesh.n_stored,
+            "referenced_vertices": mesh.n_referenced,
+            "faces": mesh.n_faces,
+        },
+        "settings": {
+            "runs": runs,
+            "peer_fraction": fraction,
+            "peer_target_faces": target_faces,
+            "qem_options": option_values,
+        },
+        "qem_note": qem_note,
+        "series": [s.to_dict() for s in (cold, warm, hot, *peers.values())],
+        "numba_compile_s": compile_s,
+        "ratios": ratios,
+    }
+
+
+def write_build_speed_report(path: Path, entry: dict[str, Any]) -> None:
+    """Write the Markdown report of one mesh's build-speed entry."""
+    settings, mesh_info = entry["settings"], entry["input"]
+    rows = []
+    for series in entry["series"]:
+        counts = "-"
+        if "n_full" in series:
+            counts = f"{series['n_full']} -> {series['n_base']} (whole forest)"
+        elif "out_vertices" in series:
+            counts = f"{series['out_vertices']} V / {series['out_faces']} F"
+        rows.append(
+            [
+                series["name"],
+                str(len(series["times_s"])),
+                format_ms(series["median_s"]),
+                ", ".join(format_ms(t) for t in series["times_s"]) or "-",
+                format_mib(series["peak_rss_bytes"], series["rss_increase_bytes"]),
+                counts,
+                series["status"],
+            ]
+        )
+    table = markdown_table(
+        [
+            "series",
+            "runs",
+            "median ms",
+            "each run ms",
+            "peak RSS MiB (+call)",
+            "vertices",
+            "status",
+        ],
+        rows,
+        [False, True, True, True, True, False, False],
+    )
+    ratio_lines = [
+        f"- qem-lod {key.split('/')[0].replace('_', ' ')} / {key.split('/')[1]}: "
+        f"{format_ratio(value)}"
+        for key, value in entry["ratios"].items()
+    ] or ["- no ratio: a series is missing (see status)"]
+    compile_line = (
+        f"Numba compile time (cold - median warm cache): {format_ms(entry['numba_compile_s'])} ms."
+        if entry["numba_compile_s"] is not None
+        else "Numba compile time: not measured (a qem-lod series is missing)."
+    )
+    lines = [
+        f"# Build speed on `{entry['mesh']}`: the whole qem-lod forest against one peer "
+        "simplification",
+        "",
+        f"Input: {mesh_info['referenced_vertices']} referenced vertices "
+        f"({mesh_info['stored_vertices']} stored), {mesh_info['faces']} faces. "
+        f"Measured {entry['measured_at']}.",
+        *machine_header_lines(),
+        "",
+        "Every run is a fresh child process; times are of the call alone. qem-lod builds "
+        "the whole forest (every contraction down to the base mesh) with options "
+        f"`{settings['qem_options'] or 'defaults'}`: cold = empty NUMBA_CACHE_DIR (compile "
+        "+ run), warm cache = the same cache dir afterwards (cache load + run), hot = after "
+        "an untimed build of a 22-vertex mesh in the same process (run alone). The peers "
+        f"simplify once to {settings['peer_fraction']:g} of the referenced vertices "
+        f"({settings['peer_target_faces']} faces), default options, after an untimed call "
+        "on the same tiny mesh. Peak RSS: the child's peak during the call (MiB, includes "
+        "the input and libraries), its increase over the RSS before the call; the largest "
+        "over the runs.",
+        "",
+    ]
+    if entry.get("qem_note"):
+        lines += [f"qem-lod: {entry['qem_note']}", ""]
+    lines += [*table, "", compile_line, "", "Ratios of medians (above 1: qem-lod is slower):", ""]
+    lines += [*ratio_lines, ""]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines), encoding="utf-8")
+
+
+def _progress(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m bench.build_speed",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--mesh", default="dragon.ply", help="file name in --mesh-dir")
+    parser.add_argument("--mesh-dir", type=Path, default=DEFAULT_MESH_DIR)
+    parser.add_argument("--runs", type=int, default=3, help="runs per warm series (median)")
+    parser.add_argument(
+        "--fraction",
+        type=float,
+        default=DEFAULT_FRACTION,
+        help="peers simplify to this fraction of the referenced vertices",
+    )
+    parser.add_argument(
+        "--qem-option",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a qem_core.BuildOptions field for the build; repeatable",
+    )
+    parser.add_argument("--timeout", type=float, default=None, help="seconds per child process")
+    parser.add_argument("--out-dir", type=Path, default=RESULTS_DIR)
+    args = parser.parse_args(argv)
+    if args.runs < 1:
+        parser.error("--runs must be at least 1")
+    try:
+        option_values = qem_lod.parse_option_assignments(args.qem_option)
+    except ValueError as error:
+        parser.error(str(error))
+    qem_note = qem_lod.qem_unavailable_reason()
+    if qem_note is None:
+        try:
+            qem_lod.validate_option_values(option_values)
+        except ValueError as error:
+            parser.error(str(error))
+    else:
+        _progress(f"qem-lod: {qem_note}")
+    mesh = load_bench_mesh(args.mesh_dir / args.mesh)
+    entry = measure_build_speed(
+        mesh, option_values, args.runs, args.fraction, args.timeout, qem_note
+    )
+    report_path = args.out_dir / "build-speed.md"
+    write_build_speed_report(report_path, entry)
+    json_path = args.out_dir / "build-speed.json"
+    results = read_json(json_path)
+    results.setdefault("meshes", {})[mesh.name] = entry
+    write_json(json_path, {"machine": describe_machine(), "meshes": results["meshes"]})
+    _progress(f"wrote {report_path} and {json_path}")
+    return 0 if qem_note is None else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

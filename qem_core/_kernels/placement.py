@@ -1,0 +1,157 @@
+"""Where the contracted vertex goes: the minimiser of its quadric.
+
+When A is singular or ill-conditioned (a flat or cylindrical neighbourhood) the minimiser
+is a plane or a line, not a point. We pin it down with a truncated pseudo-inverse around
+the edge midpoint m: directions whose eigenvalue is below ``rank_tolerance`` times the
+largest are left at m, so of all minimisers of the well-determined directions we take the
+one closest to m (Lindstrom 2000 does the same with an SVD). The result is compared with
+the endpoints and the midpoint and the cheapest of the four wins.
+
+Eigenvalues come in closed form (Smith 1961); only the eigenvector that is well separated
+from the others is ever needed (the flat one for a cylinder, the dominant one for a
+plane), and it is the null vector of A - λI, taken from a cross product of its rows.
+"""
+
+import numba
+import numpy as np
+
+from .quadrics import evaluate
+
+
+def _eigenvalues3(a00, a01, a02, a11, a12, a22):
+    """Eigenvalues of a symmetric 3x3 matrix, largest first."""
+    p1 = a01 * a01 + a02 * a02 + a12 * a12
+    q = (a00 + a11 + a22) / 3.0
+    d0, d1, d2 = a00 - q, a11 - q, a22 - q
+    p2 = d0 * d0 + d1 * d1 + d2 * d2 + 2.0 * p1
+    if p2 <= 0.0:
+        return q, q, q
+    p = np.sqrt(p2 / 6.0)
+    # det((A - qI) / p) / 2, clamped: rounding may push it past +-1.
+    r = (
+        d0 * (d1 * d2 - a12 * a12) - a01 * (a01 * d2 - a12 * a02) + a02 * (a01 * a12 - d1 * a02)
+    ) / (2.0 * p * p * p)
+    r = min(1.0, max(-1.0, r))
+    phi = np.arccos(r) / 3.0
+    largest = q + 2.0 * p * np.cos(phi)
+    smallest = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
+    return largest, 3.0 * q - largest - smallest, smallest
+
+
+eigenvalues3 = numba.njit(cache=True)(_eigenvalues3)
+
+
+def _null_vector3(a00, a01, a02, a11, a12, a22, shift):
+    """Unit vector spanning the null space of A - shift*I, assumed of rank 2."""
+    r0x, r0y, r0z = a00 - shift, a01, a02
+    r1x, r1y, r1z = a01, a11 - shift, a12
+    r2x, r2y, r2z = a02, a12, a22 - shift
+    best_x = r0y * r1z - r0z * r1y
+    best_y = r0z * r1x - r0x * r1z
+    best_z = r0x * r1y - r0y * r1x
+    best = best_x * best_x + best_y * best_y + best_z * best_z
+    cx = r0y * r2z - r0z * r2y
+    cy = r0z * r2x - r0x * r2z
+    cz = r0x * r2y - r0y * r2x
+    c = cx * cx + cy * cy + cz * cz
+    if c > best:
+        best_x, best_y, best_z, best = cx, cy, cz, c
+    cx = r1y * r2z - r1z * r2y
+    cy = r1z * r2x - r1x * r2z
+    cz = r1x * r2y - r1y * r2x
+    c = cx * cx + cy * cy + cz * cz
+    if c > best:
+        best_x, best_y, best_z, best = cx, cy, cz, c
+    if best <= 0.0:
+        return 0.0, 0.0, 0.0
+    norm = np.sqrt(best)
+    return best_x / norm, best_y / norm, best_z / norm
+
+
+null_vector3 = numba.njit(cache=True)(_null_vector3)
+
+
+def _solve3(a00, a01, a02, a11, a12, a22, gx, gy, gz):
+    """A^-1 g by cofactors (A symmetric, invertible)."""
+    c00 = a11 * a22 - a12 * a12
+    c01 = a02 * a12 - a01 * a22
+    c02 = a01 * a12 - a02 * a11
+    c11 = a00 * a22 - a02 * a02
+    c12 = a01 * a02 - a00 * a12
+    c22 = a00 * a11 - a01 * a01
+    det = a00 * c00 + a01 * c01 + a02 * c02
+    return (
+        (c00 * gx + c01 * gy + c02 * gz) / det,
+        (c01 * gx + c11 * gy + c12 * gz) / det,
+        (c02 * gx + c12 * gy + c22 * gz) / det,
+    )
+
+
+solve3 = numba.njit(cache=True)(_solve3)
+
+
+def _minimise_near(quadric, mx, my, mz, rank_tolerance, out):
+    """The minimiser of ``quadric`` closest to m = (mx, my, mz), written to out (3,)."""
+    a00, a01, a02 = quadric[0], quadric[1], quadric[2]
+    a11, a12, a22 = quadric[3], quadric[4], quadric[5]
+    # Gradient at m (over 2): g = A m + b; the step is -A^+ g.
+    gx = a00 * mx + a01 * my + a02 * mz + quadric[6]
+    gy = a01 * mx + a11 * my + a12 * mz + quadric[7]
+    gz = a02 * mx + a12 * my + a22 * mz + quadric[8]
+    out[0], out[1], out[2] = mx, my, mz
+    largest, middle, smallest = eigenvalues3(a00, a01, a02, a11, a12, a22)
+    if largest <= 0.0:
+        return
+    floor = rank_tolerance * largest
+    if smallest > floor:
+        sx, sy, sz = solve3(a00, a01, a02, a11, a12, a22, gx, gy, gz)
+    elif middle > floor:
+        # A cylinder: one flat direction u. Remove g's component along u and solve with
+        # u's eigenvalue raised to the largest, which leaves the other two untouched.
+        ux, uy, uz = null_vector3(a00, a01, a02, a11, a12, a22, smallest)
+        along = ux * gx + uy * gy + uz * gz
+        lift = largest - smallest
+        sx, sy, sz = solve3(
+            a00 + lift * ux * ux, a01 + lift * ux * uy, a02 + lift * ux * uz,
+            a11 + lift * uy * uy, a12 + lift * uy * uz, a22 + lift * uz * uz,
+            gx - along * ux, gy - along * uy, gz - along * uz,
+        )
+    else:
+        # A plane: only the dominant direction is determined.
+        ux, uy, uz = null_vector3(a00, a01, a02, a11, a12, a22, largest)
+        along = (ux * gx + uy * gy + uz * gz) / largest
+        sx, sy, sz = along * ux, along * uy, along * uz
+    out[0] = mx - sx
+    out[1] = my - sy
+    out[2] = mz - sz
+
+
+minimise_near = numba.njit(cache=True)(_minimise_near)
+
+
+def _place(quadric, vertices, a, b, rank_tolerance, out):
+    """Best position for contracting (a, b) under ``quadric``; returns its cost (>= 0).
+
+    out : (3,) receives the position.
+    """
+    ax, ay, az = vertices[a, 0], vertices[a, 1], vertices[a, 2]
+    bx, by, bz = vertices[b, 0], vertices[b, 1], vertices[b, 2]
+    mx, my, mz = 0.5 * (ax + bx), 0.5 * (ay + by), 0.5 * (az + bz)
+    minimise_near(quadric, mx, my, mz, rank_tolerance, out)
+    best = evaluate(quadric, out[0], out[1], out[2])
+    cost = evaluate(quadric, mx, my, mz)
+    if cost < best:
+        best = cost
+        out[0], out[1], out[2] = mx, my, mz
+    cost = evaluate(quadric, ax, ay, az)
+    if cost < best:
+        best = cost
+        out[0], out[1], out[2] = ax, ay, az
+    cost = evaluate(quadric, bx, by, bz)
+    if cost < best:
+        best = cost
+        out[0], out[1], out[2] = bx, by, bz
+    return max(best, 0.0)
+
+
+place = numba.njit(cache=True)(_place)

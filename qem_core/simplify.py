@@ -1,0 +1,207 @@
+"""The Python driver of the greedy contraction: validates, sets up flat arrays, runs the
+numba loop in chunks (reporting progress), and hands back the full contraction record.
+
+References: Garland and Heckbert, "Surface simplification using quadric error metrics"
+(1997); Edelsbrunner, "Geometry and Topology for Mesh Generation" (2001), III.12.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import NamedTuple
+
+import numpy as np
+
+from ._kernels.adjacency import compact, make_face_lists
+from ._kernels.contract import (
+    N_PARAMS,
+    PARAM_COS_STEP_TURN,
+    PARAM_EXACT,
+    PARAM_PRESERVE_TOPOLOGY,
+    PARAM_RANK_TOLERANCE,
+    STATUS_EXHAUSTED,
+    STATUS_NEED_HEAP_SPACE,
+    STATUS_NEED_POOL_SPACE,
+    STATUS_NEED_RELABEL_SPACE,
+    STATUS_STEPS_DONE,
+    Complex,
+    Record,
+    resume_pushes,
+    run_contractions,
+)
+from ._kernels.heap import grow_heap, make_heap
+from ._kernels.link import make_neighbourhood
+from ._kernels.quadrics import QUADRIC_SIZE, fill_face_quadrics
+from ._kernels.setup import fill_border_quadrics, fill_heap, make_edge_slots
+from .options import ERROR_MODE_CODES, WEIGHTING_CODES, BuildOptions
+
+__all__ = ["ContractionRun", "contract_greedily", "unique_edges"]
+
+# A direction of the contraction quadric whose eigenvalue is below this fraction of the
+# largest is treated as flat (truncated pseudo-inverse, see _kernels/placement.py).
+RANK_TOLERANCE = 1e-3
+CHUNK_CONTRACTIONS = 16384
+
+ProgressCallback = Callable[[float], None]
+
+
+class ContractionRun(NamedTuple):
+    """What the greedy loop leaves: the record and the final complex."""
+
+    record: Record
+    complex: Complex
+    n_contractions: int
+
+
+def unique_edges(faces: np.ndarray, n_vertices: int):
+    """Unique undirected edges of ``faces``.
+
+    Returns (edges (E, 2) int32 with edges[:, 0] < edges[:, 1], face_edge (m, 3) int64 the
+    edge index of each face side (corner k to k+1), edge_face_count (E,) int64).
+    """
+    sides = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
+    lo = np.minimum(sides[:, 0], sides[:, 1]).astype(np.int64)
+    hi = np.maximum(sides[:, 0], sides[:, 1]).astype(np.int64)
+    keys, face_edge, counts = np.unique(lo * n_vertices + hi, return_inverse=True,
+                                        return_counts=True)
+    edges = np.stack([keys // n_vertices, keys % n_vertices], axis=1).astype(np.int32)
+    return edges, face_edge.reshape(-1, 3), counts
+
+
+def _scatter_add(rows: np.ndarray, index: np.ndarray, size: int) -> np.ndarray:
+    """out[i] = sum of rows[j] with index[j] == i; rows (k, 10), deterministic order."""
+    out = np.zeros((size, rows.shape[1]))
+    for d in range(rows.shape[1]):
+        out[:, d] = np.bincount(index, weights=rows[:, d], minlength=size)
+    return out
+
+
+def _kernel_params(options: BuildOptions) -> np.ndarray:
+    params = np.zeros(N_PARAMS)
+    params[PARAM_RANK_TOLERANCE] = RANK_TOLERANCE
+    params[PARAM_COS_STEP_TURN] = np.cos(np.radians(options.max_face_turn_deg))
+    params[PARAM_EXACT] = float(ERROR_MODE_CODES[options.error_mode])
+    params[PARAM_PRESERVE_TOPOLOGY] = float(options.preserve_topology)
+    return params
+
+
+def _initial_complex(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions):
+    n, m = vertices.shape[0], faces.shape[0]
+    weighting = WEIGHTING_CODES[options.weighting]
+    face_quadrics = np.zeros((m, QUADRIC_SIZE))
+    face_normals = np.zeros((m, 3))
+    fill_face_quadrics(vertices, faces, weighting, face_quadrics, face_normals)
+
+    edges, face_edge, edge_face_count = unique_edges(faces, n)
+    border = np.flatnonzero(edge_face_count == 1)
+    # The one face of each border edge, and the side's direction in that face.
+    side_of_edge = np.full(edges.shape[0], -1, np.int64)
+    side_of_edge[face_edge.reshape(-1)] = np.arange(3 * m)
+    border_sides = side_of_edge[border]
+    border_faces = border_sides // 3
+    border_from = faces[border_faces, border_sides % 3]
+    border_to = faces[border_faces, (border_sides + 1) % 3]
+    border_edges = np.stack([border_from, border_to], axis=1).astype(np.int32)
+    border_quadrics = np.zeros((border.size, QUADRIC_SIZE))
+    fill_border_quadrics(vertices, border_edges, border_faces, face_normals, weighting,
+                         float(options.boundary_weight), border_quadrics)
+
+    corner_rows = np.repeat(face_quadrics, 3, axis=0)
+    vertex_quadrics = _scatter_add(
+        np.concatenate([corner_rows, border_quadrics, border_quadrics]),
+        np.concatenate([faces.reshape(-1), border_edges[:, 0], border_edges[:, 1]]),
+        n,
+    )
+    exact = options.error_mode == "exact"
+    if exact:
+        edge_quadrics = _scatter_add(
+            np.concatenate([corner_rows, border_quadrics]),
+            np.concatenate([face_edge.reshape(-1), border]),
+            edges.shape[0],
+        )
+    else:
+        edge_quadrics = np.zeros((0, QUADRIC_SIZE))
+    edge_slot = make_edge_slots(edges if exact else edges[:0], n)
+    cx = Complex(
+        vertices=np.array(vertices, np.float64, copy=True),
+        vertex_quadrics=vertex_quadrics,
+        vertex_stamp=np.zeros(n, np.int32),
+        vertex_alive=(np.bincount(faces.reshape(-1), minlength=n) > 0).astype(np.uint8),
+        vertex_refused=np.zeros(n, np.uint8),
+        faces=np.array(faces, np.int32, copy=True),
+        face_alive=np.ones(m, np.uint8),
+        face_normals=face_normals,
+        face_quadrics=face_quadrics,
+        edge_slot=edge_slot,
+        edge_quadrics=edge_quadrics,
+    )
+    return cx, edges
+
+
+def _make_record(n: int, m: int) -> Record:
+    return Record(
+        a=np.full(n, -1, np.int32),
+        b=np.full(n, -1, np.int32),
+        position_a=np.zeros((n, 3)),
+        position_b=np.zeros((n, 3)),
+        cost=np.zeros(n),
+        killed_end=np.zeros(n, np.int64),
+        killed=np.full(m, -1, np.int32),
+        relabel_end=np.zeros(n, np.int64),
+        relabel=np.full(max(8 * n, 64), -1, np.int32),
+        counts=np.zeros(3, np.int64),
+    )
+
+
+def _grown(array: np.ndarray, fill) -> np.ndarray:
+    bigger = np.full((2 * array.shape[0],) + array.shape[1:], fill, array.dtype)
+    bigger[: array.shape[0]] = array
+    return bigger
+
+
+def contract_greedily(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    options: BuildOptions,
+    progress: ProgressCallback | None = None,
+    max_contractions: int | None = None,
+) -> ContractionRun:
+    """Contract edges greedily by quadric error until nothing valid is left.
+
+    vertices : (n, 3) float64, faces : (m, 3) int32, already prepared (every vertex
+    referenced, no degenerate or duplicate face). ``max_contractions`` stops early (the
+    tests use it to compare a level of detail with the greedy run stopped there).
+    """
+    n, m = vertices.shape[0], faces.shape[0]
+    cx, edges = _initial_complex(vertices, faces, options)
+    params = _kernel_params(options)
+    lists = make_face_lists(cx.faces, n, capacity=6 * m + 1024)
+    hood = make_neighbourhood(n)
+    heap = make_heap(edges.shape[0] + 8 * n + 1024)
+    fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_slot, cx.edge_quadrics, heap.cost,
+              heap.ids, heap.size, edges, options.error_mode == "exact", RANK_TOLERANCE)
+    record = _make_record(n, m)
+    budget = n if max_contractions is None else max(0, int(max_contractions))
+    done = 0
+    while done < budget:
+        status, steps, pending = run_contractions(
+            cx, lists, hood, heap, record, params, min(CHUNK_CONTRACTIONS, budget - done)
+        )
+        done += steps
+        if status == STATUS_EXHAUSTED:
+            break
+        if status == STATUS_NEED_RELABEL_SPACE:
+            record = record._replace(relabel=_grown(record.relabel, -1))
+        elif status == STATUS_NEED_POOL_SPACE:
+            compact(lists, cx.vertex_alive)
+            lists = lists._replace(pool=_grown(lists.pool, -1))
+        elif status == STATUS_NEED_HEAP_SPACE:
+            heap = grow_heap(heap)
+            while not resume_pushes(cx, lists, hood, heap, pending, params):
+                heap = grow_heap(heap)
+        else:
+            assert status == STATUS_STEPS_DONE, status
+        if progress is not None:
+            progress(min(1.0, done / max(1, n - 4)))
+    return ContractionRun(record, cx, done)
+

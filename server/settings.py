@@ -1,0 +1,151 @@
+"""Service configuration: one pydantic-settings model, read from ``QEM_*`` environment
+variables (and a ``.env`` file if present), validated once.
+
+    QEM_DATA_DIR=/var/lib/qem QEM_TOKENS=tok-aaaaaaaaaaaaaaaa,tok-bbbbbbbbbbbbbbbb qem serve
+
+Storage and jobs are picked by name (``metadata_backend``, ``blob_backend``,
+``jobs_backend``) from the registries in `server.storage` and `server.jobs`, so a
+deployment that outgrows one machine changes configuration, not code.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+from functools import lru_cache
+from pathlib import Path
+from typing import Annotated
+
+from pydantic import Field, field_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+__all__ = [
+    "BLOB_BACKENDS",
+    "load_backend",
+    "JOBS_BACKENDS",
+    "METADATA_BACKENDS",
+    "MIN_TOKEN_LENGTH",
+    "Settings",
+    "get_settings",
+]
+
+# Backend name -> "module:attribute" of its implementation, imported only when chosen.
+METADATA_BACKENDS = {"sqlite": "server.storage.sqlite:SqliteMetadataStore"}
+BLOB_BACKENDS = {"local": "server.storage.files:LocalBlobStore"}
+JOBS_BACKENDS = {"local": "server.jobs.local:LocalJobQueue"}
+
+# A bearer token shorter than this is guessable; refuse it rather than run half-protected.
+MIN_TOKEN_LENGTH = 16
+
+
+def _default_workers() -> int:
+    # Leave one core to the web server; builds are CPU-bound and single-threaded.
+    return max(1, min(4, (os.cpu_count() or 2) - 1))
+
+
+class Settings(BaseSettings):
+    """Everything the service reads from its environment.
+
+    data_dir : directory of the embedded storage (SQLite database, uploads, .qpm files);
+        created on start.
+    max_upload_bytes : uploads larger than this are refused with 413 (default 512 MiB).
+    tokens : bearer tokens allowed to write (upload, delete), comma-separated in
+        ``QEM_TOKENS``; empty means writes are open. Reads are always public.
+    workers : number of build worker processes.
+    mesh_cache_size : how many loaded progressive meshes stay in memory.
+    lod_cache_bytes : memory budget of encoded levels kept for repeated requests.
+    max_build_attempts : a build interrupted this many times (restart, worker crash) is
+        marked failed instead of being requeued again.
+    progress_interval_s : a build writes its progress to the database at most this often.
+    cors_allow_origins : origins allowed to GET from a browser ("*" = any).
+    web_dir : folder served at ``/`` (the web viewer); default ``client/web`` next to the
+        installed package, and a plain HTML list of meshes when it does not exist.
+    demo_mesh : a mesh file uploaded on start when the storage holds no mesh.
+    """
+
+    model_config = SettingsConfigDict(
+        env_prefix="QEM_", env_file=".env", extra="ignore", frozen=True
+    )
+
+    data_dir: Path = Path("data")
+    max_upload_bytes: int = Field(512 * 2**20, ge=1, le=64 * 2**30)
+    tokens: Annotated[tuple[str, ...], NoDecode] = Field((), repr=False)
+    workers: int = Field(default_factory=_default_workers, ge=1, le=64)
+    mesh_cache_size: int = Field(8, ge=1, le=1024)
+    lod_cache_bytes: int = Field(256 * 2**20, ge=0, le=64 * 2**30)
+    max_build_attempts: int = Field(3, ge=1, le=100)
+    progress_interval_s: float = Field(0.5, gt=0.0, le=60.0)
+    metadata_backend: str = "sqlite"
+    blob_backend: str = "local"
+    jobs_backend: str = "local"
+    cors_allow_origins: Annotated[tuple[str, ...], NoDecode] = ("*",)
+    web_dir: Path | None = None
+    demo_mesh: Path | None = None
+
+    @field_validator("tokens", "cors_allow_origins", mode="before")
+    @classmethod
+    def _split_commas(cls, value: object) -> object:
+        if isinstance(value, str):
+            return tuple(part.strip() for part in value.split(",") if part.strip())
+        return value
+
+    @field_validator("tokens")
+    @classmethod
+    def _check_tokens(cls, value: tuple[str, ...]) -> tuple[str, ...]:
+        for token in value:
+            if len(token) < MIN_TOKEN_LENGTH:
+                raise ValueError(
+                    f"a write token has {len(token)} characters; use at least "
+                    f"{MIN_TOKEN_LENGTH} (e.g. `python -c 'import secrets; "
+                    f"print(secrets.token_urlsafe(24))'`)"
+                )
+            if any(ch.isspace() for ch in token):
+                raise ValueError("write tokens may not contain whitespace")
+        return value
+
+    @field_validator("data_dir")
+    @classmethod
+    def _check_data_dir(cls, value: Path) -> Path:
+        resolved = value.expanduser().resolve()
+        if resolved == Path(resolved.anchor):
+            raise ValueError(
+                f"data_dir={str(value)!r} is a filesystem root; use a dedicated folder"
+            )
+        if resolved.exists() and not resolved.is_dir():
+            raise ValueError(f"data_dir={str(value)!r} exists and is not a directory")
+        return resolved
+
+    @field_validator("metadata_backend", "blob_backend", "jobs_backend")
+    @classmethod
+    def _check_backend(cls, value: str, info) -> str:
+        known = {
+            "metadata_backend": METADATA_BACKENDS,
+            "blob_backend": BLOB_BACKENDS,
+            "jobs_backend": JOBS_BACKENDS,
+        }[info.field_name]
+        if value not in known:
+            raise ValueError(f"{info.field_name}={value!r} is not one of {sorted(known)}")
+        return value
+
+    @field_validator("demo_mesh")
+    @classmethod
+    def _check_demo_mesh(cls, value: Path | None) -> Path | None:
+        if value is not None and not value.is_file():
+            raise ValueError(f"demo_mesh={str(value)!r} is not a file")
+        return value
+
+    @property
+    def auth_enabled(self) -> bool:
+        return bool(self.tokens)
+
+
+def load_backend(registry: dict[str, str], name: str):
+    """The class registered under `name` in one of the ``*_BACKENDS`` registries."""
+    module_name, _, attribute = registry[name].partition(":")
+    return getattr(importlib.import_module(module_name), attribute)
+
+
+@lru_cache
+def get_settings() -> Settings:
+    """The settings of this process, read from the environment once."""
+    return Settings()

@@ -1,0 +1,104 @@
+"""Storage: mesh records plus blobs, behind the interfaces of `server.storage.base`.
+
+`open_storage(settings)` builds the pair named by ``metadata_backend`` and
+``blob_backend``. Blob keys:
+
+    uploads/<id>              the file as uploaded
+    meshes/<id>/<token>.qpm   the progressive mesh built by attempt <token>
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+from ..settings import BLOB_BACKENDS, METADATA_BACKENDS, Settings, load_backend
+from .base import (
+    UNFINISHED,
+    BlobStore,
+    BlobWriter,
+    MeshRecord,
+    MeshStatus,
+    MetadataStore,
+    new_mesh_id,
+    new_token,
+)
+
+__all__ = [
+    "UNFINISHED",
+    "BlobStore",
+    "BlobWriter",
+    "MeshRecord",
+    "MeshStatus",
+    "MetadataStore",
+    "Storage",
+    "new_mesh_id",
+    "new_token",
+    "open_storage",
+    "qpm_key",
+    "upload_key",
+]
+
+log = logging.getLogger("qem.storage")
+
+
+def upload_key(mesh_id: str) -> str:
+    return f"uploads/{mesh_id}"
+
+
+def qpm_key(mesh_id: str, token: str) -> str:
+    return f"meshes/{mesh_id}/{token}.qpm"
+
+
+@dataclass
+class Storage:
+    """The metadata store and the blob store of one deployment."""
+
+    metadata: MetadataStore
+    blobs: BlobStore
+
+    def delete_mesh(self, mesh_id: str) -> MeshRecord | None:
+        """Remove a mesh's record, then its blobs. Returns the record, or None."""
+        record = self.metadata.delete(mesh_id)
+        if record is not None:
+            for key in list(self.blobs.keys(f"meshes/{mesh_id}/")):
+                self.blobs.delete(key)
+            self.blobs.delete(record.upload_key)
+        return record
+
+    def collect_garbage(self) -> int:
+        """Remove temporary files of interrupted writes and blobs that no record refers
+        to (a crash between writing a blob and its record, a deleted mesh whose orphaned
+        build still wrote). Call on start, before serving. Returns the number removed."""
+        removed = self.blobs.sweep()
+        records = {record.id: record for record in self.metadata.records()}
+        for key in list(self.blobs.keys()):
+            if not _referenced(key, records):
+                self.blobs.delete(key)
+                removed += 1
+        if removed:
+            log.info("removed %d unreferenced or temporary blob(s)", removed)
+        return removed
+
+    def close(self) -> None:
+        self.metadata.close()
+
+
+def _referenced(key: str, records: dict[str, MeshRecord]) -> bool:
+    parts = key.split("/")
+    if len(parts) < 2 or parts[1] not in records:
+        return False
+    record = records[parts[1]]
+    if parts[0] == "uploads":
+        return key == record.upload_key
+    if parts[0] == "meshes":
+        # Keep the published .qpm; while building, the attempt's own file may appear.
+        return key == record.qpm_key or record.status in UNFINISHED
+    return False
+
+
+def open_storage(settings: Settings) -> Storage:
+    """The storage named by `settings`, ready to use."""
+    metadata = load_backend(METADATA_BACKENDS, settings.metadata_backend).from_settings(settings)
+    blobs = load_backend(BLOB_BACKENDS, settings.blob_backend).from_settings(settings)
+    return Storage(metadata=metadata, blobs=blobs)

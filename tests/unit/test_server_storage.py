@@ -1,0 +1,269 @@
+"""The embedded storage: SQLite records with fenced state changes, atomic blob writes,
+garbage collection and recovery of interrupted builds."""
+
+from __future__ import annotations
+
+import threading
+
+import pytest
+
+from server.jobs.base import JobQueue
+from server.settings import Settings
+from server.storage import MeshRecord, Storage, open_storage, qpm_key, upload_key
+
+
+@pytest.fixture
+def settings(tmp_path) -> Settings:
+    return Settings(data_dir=tmp_path / "data", workers=1, _env_file=None)
+
+
+@pytest.fixture
+def storage(settings) -> Storage:
+    opened = open_storage(settings)
+    yield opened
+    opened.close()
+
+
+def _record(mesh_id: str = "00000000000000aa", **fields) -> MeshRecord:
+    return MeshRecord(
+        id=mesh_id,
+        name="bunny.ply",
+        upload_key=upload_key(mesh_id),
+        upload_bytes=10,
+        **fields,
+    )
+
+
+def _put(storage: Storage, key: str, data: bytes = b"ply\n") -> None:
+    with storage.blobs.writer(key) as writer:
+        writer.write(data)
+
+
+# -- records -------------------------------------------------------------------------
+
+
+def test_record_round_trip(storage):
+    record = _record(options={"weighting": "volume"})
+    storage.metadata.create(record)
+    assert storage.metadata.get(record.id) == record
+    assert storage.metadata.records() == [record]
+    assert storage.metadata.count() == 1
+    assert storage.metadata.get("ffffffffffffffff") is None
+
+
+def test_records_survive_reopening(settings, storage):
+    storage.metadata.create(_record())
+    reopened = open_storage(settings)
+    try:
+        assert reopened.metadata.get("00000000000000aa").name == "bunny.ply"
+    finally:
+        reopened.close()
+
+
+def test_build_lifecycle(storage):
+    storage.metadata.create(_record())
+    claimed = storage.metadata.claim("00000000000000aa", "token-1")
+    assert claimed.status == "building" and claimed.attempts == 1 and claimed.claim == "token-1"
+    assert storage.metadata.set_progress("00000000000000aa", "token-1", 0.5)
+    assert storage.metadata.get("00000000000000aa").progress == 0.5
+    assert storage.metadata.finish(
+        "00000000000000aa",
+        "token-1",
+        qpm_key="meshes/00000000000000aa/token-1.qpm",
+        n_vertices=10,
+        n_faces=16,
+        n_base=4,
+        bbox=((0, 0, 0), (1, 2, 3)),
+    )
+    done = storage.metadata.get("00000000000000aa")
+    assert (done.status, done.progress, done.claim) == ("ready", 1.0, None)
+    assert (done.n_vertices, done.n_faces, done.n_base) == (10, 16, 4)
+    assert done.bbox == ((0.0, 0.0, 0.0), (1.0, 2.0, 3.0))
+    # Finished records can be neither claimed, nor failed, nor requeued.
+    assert storage.metadata.claim("00000000000000aa", "token-2") is None
+    assert not storage.metadata.fail("00000000000000aa", "late")
+    assert not storage.metadata.requeue("00000000000000aa")
+
+
+def test_writes_of_a_replaced_attempt_are_fenced(storage):
+    storage.metadata.create(_record())
+    storage.metadata.claim("00000000000000aa", "old")
+    assert storage.metadata.requeue("00000000000000aa")  # e.g. the server restarted
+    assert storage.metadata.claim("00000000000000aa", "new").attempts == 2
+    assert not storage.metadata.set_progress("00000000000000aa", "old", 0.9)
+    assert not storage.metadata.fail("00000000000000aa", "orphan says no", token="old")
+    assert not storage.metadata.finish(
+        "00000000000000aa",
+        "old",
+        qpm_key="x",
+        n_vertices=1,
+        n_faces=1,
+        n_base=1,
+        bbox=((0, 0, 0), (0, 0, 0)),
+    )
+    record = storage.metadata.get("00000000000000aa")
+    assert (record.status, record.claim, record.error) == ("building", "new", None)
+    assert storage.metadata.fail("00000000000000aa", "bad file", token="new")
+    assert storage.metadata.get("00000000000000aa").error == "bad file"
+
+
+def test_only_one_of_many_concurrent_claims_wins(storage):
+    storage.metadata.create(_record())
+    wins = []
+    threads = [
+        threading.Thread(
+            target=lambda i=i: wins.append(storage.metadata.claim("00000000000000aa", f"t{i}"))
+        )
+        for i in range(8)
+    ]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert sum(win is not None for win in wins) == 1
+
+
+def test_progress_is_clamped(storage):
+    storage.metadata.create(_record())
+    storage.metadata.claim("00000000000000aa", "t")
+    storage.metadata.set_progress("00000000000000aa", "t", 7.0)
+    assert storage.metadata.get("00000000000000aa").progress == 1.0
+
+
+def test_newer_schema_is_refused(settings, storage):
+    storage.metadata._execute("PRAGMA user_version=99")
+    with pytest.raises(RuntimeError, match="newer than this server"):
+        open_storage(settings)
+
+
+# -- blobs ---------------------------------------------------------------------------
+
+
+def test_blob_is_invisible_until_committed(storage):
+    writer = storage.blobs.writer("uploads/00000000000000aa")
+    writer.write(b"ply\n")
+    assert not storage.blobs.exists("uploads/00000000000000aa")
+    assert list(storage.blobs.keys()) == []
+    writer.commit()
+    with storage.blobs.open("uploads/00000000000000aa") as handle:
+        assert handle.read() == b"ply\n"
+    assert list(storage.blobs.keys()) == ["uploads/00000000000000aa"]
+
+
+def test_failed_write_leaves_nothing(storage, settings):
+    with pytest.raises(OSError), storage.blobs.writer("uploads/00000000000000aa") as writer:
+        writer.write(b"half a file")
+        raise OSError("client went away")
+    assert not storage.blobs.exists("uploads/00000000000000aa")
+    assert list((settings.data_dir / "blobs").rglob("*")) == [settings.data_dir / "blobs/.tmp"]
+
+
+def test_staged_path_publishes_on_success_only(storage):
+    with storage.blobs.staged_path("meshes/a/t.qpm") as path:
+        path.write_bytes(b"QPM")
+    with storage.blobs.local_path("meshes/a/t.qpm") as path:
+        assert path.read_bytes() == b"QPM"
+    with pytest.raises(ValueError), storage.blobs.staged_path("meshes/a/u.qpm") as path:
+        path.write_bytes(b"half")
+        raise ValueError
+    assert not storage.blobs.exists("meshes/a/u.qpm")
+
+
+def test_crashed_write_is_swept_on_start(settings, storage):
+    writer = storage.blobs.writer("uploads/00000000000000aa")
+    writer.write(b"partial")
+    writer._file.close()  # the process dies here: no commit, no abort
+    assert storage.collect_garbage() == 1
+    assert list((settings.data_dir / "blobs" / ".tmp").iterdir()) == []
+    assert not storage.blobs.exists("uploads/00000000000000aa")
+
+
+@pytest.mark.parametrize("key", ["../etc/passwd", "/abs", "a//b", "a/../b", "", "a b"])
+def test_blob_keys_cannot_escape(storage, key):
+    with pytest.raises(ValueError, match="invalid blob key"):
+        storage.blobs.writer(key)
+
+
+def test_delete_missing_blob(storage):
+    assert not storage.blobs.delete("uploads/nothing")
+    with pytest.raises(FileNotFoundError), storage.blobs.local_path("uploads/nothing"):
+        pass
+
+
+# -- storage as a whole --------------------------------------------------------------
+
+
+def test_garbage_collection_keeps_what_records_use(storage):
+    ready = _record("00000000000000aa", status="ready", qpm_key=qpm_key("00000000000000aa", "t1"))
+    storage.metadata.create(ready)
+    _put(storage, ready.upload_key)
+    _put(storage, ready.qpm_key)
+    _put(storage, qpm_key("00000000000000aa", "t0"))  # an older attempt's file
+    _put(storage, upload_key("00000000000000bb"))  # upload whose record was never written
+    building = _record("00000000000000cc", status="building")
+    storage.metadata.create(building)
+    _put(storage, building.upload_key)
+    assert storage.collect_garbage() == 2
+    assert sorted(storage.blobs.keys()) == sorted(
+        [ready.upload_key, ready.qpm_key, building.upload_key]
+    )
+
+
+def test_delete_mesh_removes_record_and_blobs(storage):
+    record = _record(status="ready", qpm_key=qpm_key("00000000000000aa", "t"))
+    storage.metadata.create(record)
+    _put(storage, record.upload_key)
+    _put(storage, record.qpm_key)
+    assert storage.delete_mesh(record.id) == record
+    assert storage.metadata.get(record.id) is None
+    assert list(storage.blobs.keys()) == []
+    assert storage.delete_mesh(record.id) is None
+
+
+# -- recovery of interrupted builds --------------------------------------------------
+
+
+class RecordingQueue(JobQueue):
+    """The interface's recovery logic, with submissions recorded instead of run."""
+
+    def __init__(self, settings, storage):
+        super().__init__(settings, storage)
+        self.submitted: list[str] = []
+
+    def start(self):
+        self.recover()
+
+    def submit(self, mesh_id):
+        self.submitted.append(mesh_id)
+
+    def close(self):
+        pass
+
+
+def test_recovery_requeues_interrupted_builds_and_fails_exhausted_ones(settings, storage):
+    storage.metadata.create(_record("00000000000000aa"))  # queued, never started
+    storage.metadata.create(_record("00000000000000bb"))
+    storage.metadata.claim("00000000000000bb", "t")  # building when the server died
+    storage.metadata.create(_record("00000000000000cc", status="ready"))
+    storage.metadata.create(_record("00000000000000dd", status="building", attempts=3))
+    queue = RecordingQueue(settings, storage)
+    queue.start()
+    assert queue.submitted == ["00000000000000aa", "00000000000000bb"]
+    requeued = storage.metadata.get("00000000000000bb")
+    assert (requeued.status, requeued.attempts, requeued.claim) == ("queued", 1, None)
+    exhausted = storage.metadata.get("00000000000000dd")
+    assert exhausted.status == "failed"
+    assert "interrupted 3 time(s)" in exhausted.error
+    assert storage.metadata.get("00000000000000cc").status == "ready"
+
+
+def test_a_build_interrupted_every_time_ends_failed(settings, storage):
+    storage.metadata.create(_record())
+    queue = RecordingQueue(settings, storage)
+    for attempt in range(1, settings.max_build_attempts + 1):
+        queue.start()  # a server start
+        assert storage.metadata.claim("00000000000000aa", f"t{attempt}").attempts == attempt
+        # ...and the server dies during the build.
+    queue.start()
+    record = storage.metadata.get("00000000000000aa")
+    assert record.status == "failed" and "gave up" in record.error

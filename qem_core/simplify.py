@@ -34,8 +34,10 @@ from ._kernels.link import make_neighbourhood
 from ._kernels.quadrics import QUADRIC_SIZE, fill_face_quadrics
 from ._kernels.setup import fill_border_quadrics, fill_heap, make_edge_slots
 from .options import ERROR_MODE_CODES, WEIGHTING_CODES, BuildOptions
+from .prepare import prepare_mesh
+from .progressive import ProgressiveMesh
 
-__all__ = ["ContractionRun", "contract_greedily", "unique_edges"]
+__all__ = ["ContractionRun", "assemble_progressive_mesh", "build", "contract_greedily", "unique_edges"]
 
 # A direction of the contraction quadric whose eigenvalue is below this fraction of the
 # largest is treated as flat (truncated pseudo-inverse, see _kernels/placement.py).
@@ -205,3 +207,109 @@ def contract_greedily(
             progress(min(1.0, done / max(1, n - 4)))
     return ContractionRun(record, cx, done)
 
+
+
+def assemble_progressive_mesh(run: ContractionRun, metadata: dict) -> ProgressiveMesh:
+    """Reverse the contraction record into a base mesh plus vertex splits.
+
+    Slot numbers of the run become level numbers: the survivors, in slot order, are
+    0..n_base-1, and the vertex retired by contraction j is introduced by split J-1-j.
+    A survivor keeps its number, so a slot's level number never changes.
+    """
+    record, cx, j_count = run
+    base_slots = np.flatnonzero(cx.vertex_alive)
+    level_of_slot = _level_of_slot(run)
+
+    killed_end = record.killed_end[:j_count]
+    killed_start = np.concatenate([[0], killed_end[:-1]])
+    base_faces = np.flatnonzero(cx.face_alive)
+    # Faces in order of appearance: the base, then those killed by the last contraction
+    # (born at split 0), and so on back to the first.
+    order = [base_faces] + [
+        record.killed[killed_start[j] : killed_end[j]] for j in range(j_count - 1, -1, -1)
+    ]
+    face_order = np.concatenate(order).astype(np.int64)
+    level_of_face = np.full(cx.faces.shape[0], -1, np.int64)
+    level_of_face[face_order] = np.arange(face_order.size)
+    born_per_split = (killed_end - killed_start)[::-1]
+    level_faces = np.concatenate([[base_faces.size], base_faces.size + np.cumsum(born_per_split)])
+
+    relabel_end = record.relabel_end[:j_count]
+    relabel_start = np.concatenate([[0], relabel_end[:-1]])
+    relabel_runs = [
+        record.relabel[relabel_start[j] : relabel_end[j]] for j in range(j_count - 1, -1, -1)
+    ]
+    relabel_faces = (
+        level_of_face[np.concatenate(relabel_runs)] if relabel_runs else np.zeros(0, np.int64)
+    )
+    relabel_offsets = np.concatenate([[0], np.cumsum((relabel_end - relabel_start)[::-1])])
+
+    reversed_j = np.arange(j_count - 1, -1, -1)
+    split_positions = np.stack(
+        [record.position_a[reversed_j], record.position_b[reversed_j]], axis=1
+    )
+    return ProgressiveMesh(
+        base_vertices=np.ascontiguousarray(cx.vertices[base_slots]),
+        split_vertex=level_of_slot[record.a[reversed_j]].astype(np.int32),
+        split_positions=np.ascontiguousarray(split_positions),
+        face_corners=level_of_slot[cx.faces[face_order]].astype(np.int32),
+        level_faces=level_faces.astype(np.int64),
+        relabel_offsets=relabel_offsets.astype(np.int64),
+        relabel_faces=relabel_faces.astype(np.int32),
+        split_cost=np.ascontiguousarray(record.cost[reversed_j]),
+        metadata=metadata,
+    )
+
+
+def build(
+    vertices,
+    faces,
+    options: BuildOptions | dict | None = None,
+    progress: ProgressCallback | None = None,
+) -> ProgressiveMesh:
+    """Simplify a triangle mesh once and record it as a progressive mesh.
+
+    vertices : (n, 3) float, faces : (m, 3) int. The input is validated and prepared
+    (unreferenced vertices dropped, exactly coincident vertices welded, degenerate and
+    duplicate faces dropped; see `prepare_mesh`), then contracted greedily until nothing
+    valid is left. ``progress(fraction)`` is called as the work goes on.
+    Raises InvalidMeshError for unusable input and InvalidOptionsError for bad options.
+    """
+    if not isinstance(options, BuildOptions):
+        options = BuildOptions.from_mapping(options)
+    prepared = prepare_mesh(vertices, faces, merge_coincident=options.merge_coincident)
+    if progress is not None:
+        progress(0.0)
+
+    def contraction_progress(fraction: float) -> None:
+        if progress is not None:
+            progress(0.02 + 0.93 * fraction)
+
+    run = contract_greedily(prepared.vertices, prepared.faces, options, contraction_progress)
+    metadata = {
+        "bbox": np.stack([prepared.vertices.min(axis=0), prepared.vertices.max(axis=0)]).tolist(),
+        "options": options.to_dict(),
+        "prepare_report": {k: int(v) for k, v in prepared.report.items()},
+        "input_vertices": int(np.asarray(vertices).shape[0]),
+        "input_faces": int(np.asarray(faces).shape[0]),
+    }
+    pm = assemble_progressive_mesh(run, metadata)
+    # For each input vertex, its level number (-1 if dropped by preparation).
+    level_of_slot = _level_of_slot(run)
+    pm.vertex_map = np.where(
+        prepared.vertex_map >= 0, level_of_slot[np.maximum(prepared.vertex_map, 0)], -1
+    ).astype(np.int32)
+    if progress is not None:
+        progress(1.0)
+    return pm
+
+
+def _level_of_slot(run: ContractionRun) -> np.ndarray:
+    """(n,) int32: the level number of each slot of the run (its place in refinement)."""
+    record, cx, j_count = run
+    base_slots = np.flatnonzero(cx.vertex_alive)
+    level_of_slot = np.full(cx.vertices.shape[0], -1, np.int32)
+    level_of_slot[base_slots] = np.arange(base_slots.size, dtype=np.int32)
+    retired = record.b[:j_count][::-1]
+    level_of_slot[retired] = base_slots.size + np.arange(j_count, dtype=np.int32)
+    return level_of_slot

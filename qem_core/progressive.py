@@ -1,0 +1,198 @@
+"""The progressive mesh: a base mesh plus an ordered list of vertex splits (Hoppe 1996).
+
+Vertices are numbered in the order refinement introduces them and faces in the order
+they appear, so the mesh at N vertices is vertices 0..N-1 and a prefix of the faces.
+Split k (level L = n_base + k -> L + 1) undoes contraction J-1-k of the greedy run:
+
+    before:  s at p_c                   after:  s at p_s, t = L at p_t
+    faces:   F(L) of them               faces:  F(L + 1), the new ones appended,
+                                                listed faces get corner s -> t
+
+``lod(n)`` replays splits 0..n-n_base-1 over the base mesh: O(n) work and memory, no
+rerun of the simplification.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from ._kernels.refine import apply_split_run
+from .errors import InvalidOptionsError
+
+__all__ = ["ProgressiveMesh", "VertexSplits", "apply_splits"]
+
+
+class VertexSplits(NamedTuple):
+    """The splits refining lod(n_from) to lod(n_to); indices are global (level numbering).
+
+    split_vertex : (K,) int32, s_k (always < n_from + k).
+    split_positions : (K, 2, 3) float64: new position of s_k, position of t = n_from + k.
+    new_faces : (F(n_to) - F(n_from), 3) int32, corners as of their birth.
+    new_face_counts : (K,) int32, how many of new_faces each split appends.
+    relabel_offsets : (K + 1,) int64 into relabel_faces (starts at 0).
+    relabel_faces : (R,) int32 global face indices whose corner s_k becomes t.
+    """
+
+    n_from: int
+    n_to: int
+    faces_from: int
+    split_vertex: np.ndarray
+    split_positions: np.ndarray
+    new_faces: np.ndarray
+    new_face_counts: np.ndarray
+    relabel_offsets: np.ndarray
+    relabel_faces: np.ndarray
+
+
+class ProgressiveMesh:
+    """A mesh that can be served at any vertex count between n_base and n_full.
+
+    Build one with `qem_core.build`; load one with `qem_core.load`.
+    """
+
+    def __init__(
+        self,
+        *,
+        base_vertices: np.ndarray,
+        split_vertex: np.ndarray,
+        split_positions: np.ndarray,
+        face_corners: np.ndarray,
+        level_faces: np.ndarray,
+        relabel_offsets: np.ndarray,
+        relabel_faces: np.ndarray,
+        split_cost: np.ndarray,
+        metadata: dict | None = None,
+    ) -> None:
+        self.base_vertices = base_vertices
+        self.split_vertex = split_vertex
+        self.split_positions = split_positions
+        self.face_corners = face_corners
+        self.level_faces = level_faces
+        self.relabel_offsets = relabel_offsets
+        self.relabel_faces = relabel_faces
+        self.split_cost = split_cost
+        self.metadata = dict(metadata or {})
+        # error(n) is the worst contraction made to get from n_full down to n: a suffix
+        # maximum of the split costs, so it never decreases as n falls.
+        suffix = np.maximum.accumulate(split_cost[::-1])[::-1] if split_cost.size else split_cost
+        self._level_error = np.append(suffix, 0.0)
+
+    # -- sizes ---------------------------------------------------------------------
+    @property
+    def n_base(self) -> int:
+        return int(self.base_vertices.shape[0])
+
+    @property
+    def n_splits(self) -> int:
+        return int(self.split_vertex.shape[0])
+
+    @property
+    def n_full(self) -> int:
+        return self.n_base + self.n_splits
+
+    @property
+    def n_faces_full(self) -> int:
+        return int(self.level_faces[-1])
+
+    @property
+    def bbox(self) -> np.ndarray:
+        """(2, 3) float64: min and max corner of the full mesh."""
+        return np.asarray(self.metadata["bbox"], np.float64).reshape(2, 3)
+
+    def n_faces(self, n: int) -> int:
+        """Number of faces of lod(n)."""
+        return int(self.level_faces[self.clamp(n) - self.n_base])
+
+    def clamp(self, n: int) -> int:
+        """The vertex count actually served for a request of n."""
+        if isinstance(n, bool) or not isinstance(n, int | np.integer):
+            raise InvalidOptionsError(f"a vertex count must be an integer, got {n!r}")
+        return int(min(max(int(n), self.n_base), self.n_full))
+
+    # -- levels --------------------------------------------------------------------
+    def error(self, n: int) -> float:
+        """Quadric error of lod(n): the largest contraction cost paid to reach it."""
+        return float(self._level_error[self.clamp(n) - self.n_base])
+
+    def errors(self) -> np.ndarray:
+        """(n_full - n_base + 1,) float64, error of every level from n_base up."""
+        return self._level_error.copy()
+
+    def lod(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """The mesh at n vertices (clamped into [n_base, n_full]).
+
+        Returns vertices (n, 3) float64 and faces (F, 3) int32; every vertex is
+        referenced. The served n is ``len(vertices)``.
+        """
+        n = self.clamp(n)
+        k = n - self.n_base
+        vertices = np.zeros((n, 3))
+        vertices[: self.n_base] = self.base_vertices
+        faces = self.face_corners[: self.level_faces[k]].copy()
+        apply_split_run(
+            vertices, faces, self.split_vertex[:k], self.split_positions[:k],
+            self.relabel_offsets[: k + 1], self.relabel_faces, self.n_base,
+        )
+        return vertices, faces
+
+    def splits(self, n_from: int, n_to: int) -> VertexSplits:
+        """The vertex splits that refine lod(n_from) into lod(n_to), n_from <= n_to."""
+        n_from, n_to = self.clamp(n_from), self.clamp(n_to)
+        if n_from > n_to:
+            raise InvalidOptionsError(
+                f"splits go from fewer to more vertices; got from={n_from} > to={n_to}"
+            )
+        k1, k2 = n_from - self.n_base, n_to - self.n_base
+        r1, r2 = self.relabel_offsets[k1], self.relabel_offsets[k2]
+        f1, f2 = self.level_faces[k1], self.level_faces[k2]
+        return VertexSplits(
+            n_from=n_from,
+            n_to=n_to,
+            faces_from=int(f1),
+            split_vertex=self.split_vertex[k1:k2],
+            split_positions=self.split_positions[k1:k2],
+            new_faces=self.face_corners[f1:f2],
+            new_face_counts=np.diff(self.level_faces[k1 : k2 + 1]).astype(np.int32),
+            relabel_offsets=self.relabel_offsets[k1 : k2 + 1] - r1,
+            relabel_faces=self.relabel_faces[r1:r2],
+        )
+
+    # -- files ---------------------------------------------------------------------
+    def save(self, path) -> None:
+        """Write this progressive mesh to one versioned .qpm file."""
+        from .qpm import save_qpm
+
+        save_qpm(self, path)
+
+    def __repr__(self) -> str:
+        return (
+            f"ProgressiveMesh(n_base={self.n_base}, n_full={self.n_full}, "
+            f"faces={self.n_faces(self.n_base)}..{self.n_faces_full})"
+        )
+
+
+def apply_splits(
+    vertices: np.ndarray, faces: np.ndarray, splits: VertexSplits
+) -> tuple[np.ndarray, np.ndarray]:
+    """Refine lod(n_from) = (vertices, faces) by ``splits``; returns lod(n_to).
+
+    The inputs are not modified. Raises InvalidOptionsError when the mesh is not at the
+    level the splits start from.
+    """
+    if vertices.shape[0] != splits.n_from or faces.shape[0] != splits.faces_from:
+        raise InvalidOptionsError(
+            f"these splits start from {splits.n_from} vertices and {splits.faces_from} "
+            f"faces; the mesh has {vertices.shape[0]} and {faces.shape[0]}"
+        )
+    out_vertices = np.zeros((splits.n_to, 3))
+    out_vertices[: splits.n_from] = vertices
+    out_faces = np.concatenate([faces.astype(np.int32, copy=False), splits.new_faces])
+    misses = apply_split_run(
+        out_vertices, out_faces, splits.split_vertex, splits.split_positions,
+        splits.relabel_offsets, splits.relabel_faces, splits.n_from,
+    )
+    if misses:
+        raise InvalidOptionsError(f"{misses} face corners did not match the splits")
+    return out_vertices, out_faces

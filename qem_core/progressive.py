@@ -19,9 +19,9 @@ from typing import NamedTuple
 import numpy as np
 
 from ._kernels.refine import apply_split_run
-from .errors import InvalidOptionsError
+from .errors import CorruptFileError, InvalidOptionsError
 
-__all__ = ["ProgressiveMesh", "VertexSplits", "apply_splits"]
+__all__ = ["ProgressiveMesh", "VertexSplits", "apply_splits", "check_splits"]
 
 
 class VertexSplits(NamedTuple):
@@ -181,6 +181,8 @@ def apply_splits(
     The inputs are not modified. Raises InvalidOptionsError when the mesh is not at the
     level the splits start from.
     """
+    check_splits(splits.n_from, splits.faces_from, splits.split_vertex, splits.new_faces,
+                 splits.new_face_counts, splits.relabel_offsets, splits.relabel_faces)
     if vertices.shape[0] != splits.n_from or faces.shape[0] != splits.faces_from:
         raise InvalidOptionsError(
             f"these splits start from {splits.n_from} vertices and {splits.faces_from} "
@@ -196,3 +198,50 @@ def apply_splits(
     if misses:
         raise InvalidOptionsError(f"{misses} face corners did not match the splits")
     return out_vertices, out_faces
+
+
+def check_splits(
+    n_from: int,
+    faces_from: int,
+    split_vertex: np.ndarray,
+    new_faces: np.ndarray,
+    new_face_counts: np.ndarray,
+    relabel_offsets: np.ndarray,
+    relabel_faces: np.ndarray,
+) -> None:
+    """Refuse split data that would index outside the mesh it refines.
+
+    Every index the refinement kernel follows is checked against the level it is used
+    at, so a damaged file or stream frame raises CorruptFileError instead of writing out
+    of bounds. Vectorised: O(size of the data).
+    """
+    k = split_vertex.shape[0]
+
+    def fail(what: str) -> None:
+        raise CorruptFileError(f"inconsistent vertex splits: {what}")
+
+    if new_face_counts.shape != (k,) or relabel_offsets.shape != (k + 1,):
+        fail("array lengths do not match the number of splits")
+    if new_faces.ndim != 2 or new_faces.shape[1] != 3:
+        fail(f"faces have shape {new_faces.shape}, expected (F, 3)")
+    if np.any(new_face_counts < 0) or int(new_face_counts.sum()) != new_faces.shape[0]:
+        fail("new face counts do not add up to the new faces")
+    if relabel_offsets[0] != 0 or relabel_offsets[-1] != relabel_faces.shape[0]:
+        fail("relabel offsets do not cover the relabel list")
+    if np.any(np.diff(relabel_offsets) < 0):
+        fail("relabel offsets decrease")
+    levels = n_from + np.arange(k)
+    if np.any(split_vertex < 0) or np.any(split_vertex >= levels):
+        fail("a split names a vertex that does not exist yet")
+    # A face born at split k may use vertices up to n_from + k.
+    born_at = np.repeat(np.arange(k), new_face_counts)
+    if new_faces.size and (
+        np.any(new_faces < 0) or np.any(new_faces > (n_from + born_at)[:, None])
+    ):
+        fail("a new face uses a vertex that does not exist at its level")
+    faces_before = faces_from + np.concatenate([[0], np.cumsum(new_face_counts)[:-1]])
+    relabel_at = np.repeat(np.arange(k), np.diff(relabel_offsets))
+    if relabel_faces.size and (
+        np.any(relabel_faces < 0) or np.any(relabel_faces >= faces_before[relabel_at])
+    ):
+        fail("a split relabels a face that does not exist yet")

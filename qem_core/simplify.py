@@ -37,7 +37,13 @@ from .options import ERROR_MODE_CODES, WEIGHTING_CODES, BuildOptions
 from .prepare import prepare_mesh
 from .progressive import ProgressiveMesh
 
-__all__ = ["ContractionRun", "assemble_progressive_mesh", "build", "contract_greedily", "unique_edges"]
+__all__ = [
+    "ContractionRun",
+    "assemble_progressive_mesh",
+    "build",
+    "contract_greedily",
+    "unique_edges",
+]
 
 # A direction of the contraction quadric whose eigenvalue is below this fraction of the
 # largest is treated as flat (truncated pseudo-inverse, see _kernels/placement.py).

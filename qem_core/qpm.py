@@ -1,0 +1,143 @@
+"""The .qpm file: one progressive mesh, versioned, loaded in O(size).
+
+Layout (little-endian)::
+
+    magic    8 bytes  b"QEMPM\\x00\\r\\n"  (the CR LF catches text-mode mangling)
+    version  uint32   FORMAT_VERSION
+    length   uint32   byte length of the header
+    header   msgpack  {"arrays": [[name, dtype, shape, offset], ...], "metadata": {...}}
+    arrays   raw C-order bytes, each at an 8-byte aligned offset from the data start
+    crc32    uint32   of every byte before it
+
+A file from a newer version, a wrong checksum, or arrays that do not form a consistent
+progressive mesh raise CorruptFileError. docs/qpm.md documents the format.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+import tempfile
+import zlib
+from pathlib import Path
+
+import msgpack
+import numpy as np
+
+from .errors import CorruptFileError
+from .progressive import ProgressiveMesh, check_splits
+
+__all__ = ["FORMAT_VERSION", "MAGIC", "load", "save_qpm"]
+
+MAGIC = b"QEMPM\x00\r\n"
+FORMAT_VERSION = 1
+
+# name -> (dtype, number of dimensions); the order is the order in the file.
+_ARRAYS = {
+    "base_vertices": ("<f8", 2),
+    "split_vertex": ("<i4", 1),
+    "split_positions": ("<f8", 3),
+    "face_corners": ("<i4", 2),
+    "level_faces": ("<i8", 1),
+    "relabel_offsets": ("<i8", 1),
+    "relabel_faces": ("<i4", 1),
+    "split_cost": ("<f8", 1),
+    "vertex_map": ("<i4", 1),
+}
+
+
+def save_qpm(pm: ProgressiveMesh, path) -> None:
+    """Write ``pm`` to ``path`` atomically (temporary file, then rename)."""
+    entries, chunks, offset = [], [], 0
+    for name, (dtype, _ndim) in _ARRAYS.items():
+        array = getattr(pm, name, None)
+        if array is None:
+            array = np.zeros(0, dtype)
+        data = np.ascontiguousarray(array, dtype=dtype).tobytes()
+        entries.append([name, dtype, list(np.shape(array)), offset])
+        padding = -len(data) % 8
+        chunks.append(data + b"\0" * padding)
+        offset += len(data) + padding
+    header = msgpack.packb({"arrays": entries, "metadata": pm.metadata})
+    body = MAGIC + struct.pack("<II", FORMAT_VERSION, len(header)) + header + b"".join(chunks)
+    blob = body + struct.pack("<I", zlib.crc32(body))
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent or ".", prefix=path.name, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as out:
+            out.write(blob)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def load(source) -> ProgressiveMesh:
+    """Read a .qpm file (a path or the file's bytes)."""
+    blob = source if isinstance(source, bytes | bytearray | memoryview) else Path(source).read_bytes()
+    blob = bytes(blob)
+    fixed = len(MAGIC) + 8
+    if len(blob) < fixed + 4 or blob[: len(MAGIC)] != MAGIC:
+        raise CorruptFileError("not a .qpm file (bad magic bytes)")
+    version, header_length = struct.unpack_from("<II", blob, len(MAGIC))
+    if version > FORMAT_VERSION:
+        raise CorruptFileError(
+            f".qpm version {version} is newer than this qem-lod reads ({FORMAT_VERSION}); "
+            "upgrade qem-lod"
+        )
+    if version < 1:
+        raise CorruptFileError(f".qpm version {version} is not valid")
+    (stored_crc,) = struct.unpack_from("<I", blob, len(blob) - 4)
+    if zlib.crc32(blob[:-4]) != stored_crc:
+        raise CorruptFileError(".qpm checksum mismatch: the file is damaged or truncated")
+    try:
+        header = msgpack.unpackb(blob[fixed : fixed + header_length])
+        entries = {entry[0]: entry[1:] for entry in header["arrays"]}
+        metadata = header["metadata"]
+    except Exception as exc:  # msgpack raises several unrelated types
+        raise CorruptFileError(f".qpm header is unreadable: {exc}") from None
+    data_start = fixed + header_length
+    data_length = len(blob) - 4 - data_start
+    arrays = {}
+    for name, (dtype, ndim) in _ARRAYS.items():
+        if name not in entries:
+            raise CorruptFileError(f".qpm file lacks the array {name!r}")
+        stored_dtype, shape, offset = entries[name]
+        shape = tuple(int(s) for s in shape)
+        if stored_dtype != dtype or len(shape) != ndim or min(shape, default=0) < 0:
+            raise CorruptFileError(f".qpm array {name!r} has dtype {stored_dtype} shape {shape}")
+        nbytes = int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
+        if not 0 <= offset <= data_length - nbytes:
+            raise CorruptFileError(f".qpm array {name!r} lies outside the file")
+        arrays[name] = np.frombuffer(
+            blob, dtype=dtype, count=nbytes // np.dtype(dtype).itemsize,
+            offset=data_start + offset,
+        ).reshape(shape)
+    return _checked_progressive_mesh(arrays, metadata)
+
+
+def _checked_progressive_mesh(arrays: dict, metadata: dict) -> ProgressiveMesh:
+    base, k = arrays["base_vertices"], arrays["split_vertex"].shape[0]
+    level_faces = arrays["level_faces"]
+    if base.shape[1:] != (3,) or arrays["split_positions"].shape != (k, 2, 3):
+        raise CorruptFileError(".qpm vertex arrays have inconsistent shapes")
+    if level_faces.shape != (k + 1,) or arrays["split_cost"].shape != (k,):
+        raise CorruptFileError(".qpm level arrays have inconsistent shapes")
+    if level_faces[-1] != arrays["face_corners"].shape[0] or np.any(np.diff(level_faces) < 0):
+        raise CorruptFileError(".qpm face counts per level are inconsistent")
+    if level_faces[0] < 0:
+        raise CorruptFileError(".qpm base face count is negative")
+    base_faces = arrays["face_corners"][: level_faces[0]]
+    if base_faces.size and (base_faces.min() < 0 or base_faces.max() >= base.shape[0]):
+        raise CorruptFileError(".qpm base faces use vertices outside the base mesh")
+    check_splits(
+        base.shape[0], int(level_faces[0]), arrays["split_vertex"],
+        arrays["face_corners"][level_faces[0]:], np.diff(level_faces),
+        arrays["relabel_offsets"], arrays["relabel_faces"],
+    )
+    if "bbox" not in metadata:
+        raise CorruptFileError(".qpm metadata lacks the bounding box")
+    vertex_map = arrays.pop("vertex_map")
+    pm = ProgressiveMesh(**arrays, metadata=metadata)
+    pm.vertex_map = vertex_map
+    return pm

@@ -1,0 +1,437 @@
+"""The ``qem`` command.
+
+    qem serve [--host H] [--port P] [--data-dir D] [--demo]    run the service
+    qem upload IN                  upload a mesh, show upload and build progress, print id
+    qem get ID -n N -o OUT         fetch the mesh at N vertices (format from OUT's suffix)
+    qem ls                         list the server's meshes
+    qem rm ID...                   delete meshes
+
+Commands against a server take ``--server URL`` (default $QEM_SERVER, else
+http://127.0.0.1:8000) and read a write token from $QEM_TOKEN; ``--json`` prints
+machine-readable output on stdout. Each subcommand is one ``cmd_*`` function registered by
+one ``add_*`` function in `SUBCOMMANDS`.
+
+Exit status: 0 success, 1 the server refused the request or the build failed, 2 bad usage,
+3 the server cannot be reached, 4 timed out, 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from .http import (
+    DEFAULT_SERVER,
+    QemBuildFailed,
+    QemClient,
+    QemClientError,
+    QemConnectionError,
+    QemHTTPError,
+)
+
+__all__ = ["SUBCOMMANDS", "build_parser", "main"]
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_UNREACHABLE, EXIT_TIMEOUT = 0, 1, 2, 3, 4
+EXIT_INTERRUPTED = 130
+
+# Output suffix -> lod format.
+_FORMATS = {".ply": "ply", ".obj": "obj", ".glb": "glb", ".msgpack": "msgpack", ".mpk": "msgpack"}
+_DEMO_MESHES = ("server/demo/spot.obj", "examples/spot.obj")
+
+log = logging.getLogger("qem")
+
+
+class CliError(Exception):
+    """A message for the user and an exit status."""
+
+    def __init__(self, message: str, status: int = EXIT_FAILED) -> None:
+        super().__init__(message)
+        self.status = status
+
+
+# -- output helpers ------------------------------------------------------------------------
+
+
+def _print_json(value: Any) -> None:
+    json.dump(value, sys.stdout, indent=2)
+    sys.stdout.write("\n")
+
+
+def _note(message: str) -> None:
+    print(message, file=sys.stderr)
+
+
+class _Bar:
+    """A one-line progress bar on stderr, drawn only on a terminal."""
+
+    def __init__(self, label: str, enabled: bool) -> None:
+        self.label = label
+        self.enabled = enabled and sys.stderr.isatty()
+        self._last = -1
+
+    def show(self, fraction: float, suffix: str = "") -> None:
+        if not self.enabled:
+            return
+        percent = int(100 * min(1.0, max(0.0, fraction)))
+        if percent == self._last and not suffix:
+            return
+        self._last = percent
+        filled = percent * 30 // 100
+        sys.stderr.write(
+            f"\r{self.label:<7} [{'#' * filled}{'.' * (30 - filled)}] {percent:3d}% {suffix}\033[K"
+        )
+        sys.stderr.flush()
+
+    def done(self) -> None:
+        if self.enabled and self._last >= 0:
+            sys.stderr.write("\n")
+            sys.stderr.flush()
+
+
+def _client(args: argparse.Namespace) -> QemClient:
+    return QemClient(args.server, token=os.environ.get("QEM_TOKEN") or None)
+
+
+# -- serve -----------------------------------------------------------------------------
+
+
+def add_serve(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "serve",
+        help="run the HTTP service",
+        description="Run the qem-lod service (settings also from QEM_* variables).",
+    )
+    parser.add_argument("--host", default="127.0.0.1", help="address to listen on")
+    parser.add_argument("--port", type=int, default=8000, help="port to listen on")
+    parser.add_argument("--data-dir", type=Path, help="storage folder (QEM_DATA_DIR)")
+    parser.add_argument("--workers", type=int, help="build worker processes (QEM_WORKERS)")
+    parser.add_argument(
+        "--demo",
+        action="store_true",
+        help="upload the demo mesh (spot) on start when the storage holds no mesh",
+    )
+    parser.add_argument(
+        "--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"]
+    )
+    parser.set_defaults(run=cmd_serve)
+
+
+def _find_demo_mesh() -> Path | None:
+    root = Path(__file__).resolve().parents[1]
+    for candidate in _DEMO_MESHES:
+        if (root / candidate).is_file():
+            return root / candidate
+    return None
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    import uvicorn
+    from pydantic import ValidationError
+
+    from server.app import create_app
+    from server.settings import Settings
+
+    logging.basicConfig(level=args.log_level.upper(), format="%(levelname)s: %(name)s: %(message)s")
+    overrides: dict[str, Any] = {}
+    if args.data_dir is not None:
+        overrides["data_dir"] = args.data_dir
+    if args.workers is not None:
+        overrides["workers"] = args.workers
+    if args.demo:
+        demo = _find_demo_mesh()
+        if demo is None:
+            log.warning(
+                "no demo mesh found (looked for %s); starting without it",
+                " and ".join(_DEMO_MESHES),
+            )
+        else:
+            overrides["demo_mesh"] = demo
+    try:
+        settings = Settings(**overrides)
+    except ValidationError as exc:
+        problems = "; ".join(
+            f"{'.'.join(str(p) for p in error['loc'])}: {error['msg']}" for error in exc.errors()
+        )
+        raise CliError(f"invalid settings: {problems}", EXIT_USAGE) from None
+    uvicorn.run(
+        create_app(settings),
+        host=args.host,
+        port=args.port,
+        log_level=args.log_level,
+        timeout_graceful_shutdown=5,
+    )
+    return EXIT_OK
+
+
+# -- commands against a server ------------------------------------------------------------
+
+
+def _remote_parent() -> argparse.ArgumentParser:
+    parent = argparse.ArgumentParser(add_help=False)
+    parent.add_argument(
+        "--server",
+        default=os.environ.get("QEM_SERVER") or DEFAULT_SERVER,
+        help="server URL (default $QEM_SERVER or %(default)s)",
+    )
+    parent.add_argument("--json", action="store_true", help="machine-readable output")
+    return parent
+
+
+def add_upload(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "upload",
+        parents=[_remote_parent()],
+        help="upload a mesh and wait until built",
+    )
+    parser.add_argument("input", type=Path, help="mesh file (PLY, OBJ, STL, OFF, GLB)")
+    parser.add_argument("--name", help="file name to record (default: the input's)")
+    parser.add_argument(
+        "-O",
+        "--option",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="build option, e.g. -O weighting=volume (repeatable)",
+    )
+    parser.add_argument("--no-wait", action="store_true", help="return once uploaded")
+    parser.add_argument("--timeout", type=float, help="give up waiting after this many s")
+    parser.set_defaults(run=cmd_upload)
+
+
+def _parse_options(pairs: list[str]) -> dict[str, str]:
+    options = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key:
+            raise CliError(f"option {pair!r} is not KEY=VALUE", EXIT_USAGE)
+        options[key.strip()] = value.strip()
+    return options
+
+
+def cmd_upload(args: argparse.Namespace) -> int:
+    if not args.input.is_file():
+        raise CliError(f"{args.input}: no such file", EXIT_USAGE)
+    options = _parse_options(args.option)
+    show = not args.json
+    with _client(args) as qem:
+        bar = _Bar("upload", show)
+        mesh_id = qem.upload(
+            args.input,
+            name=args.name,
+            options=options,
+            progress=lambda sent, total: bar.show(sent / total if total else 1.0),
+        )
+        bar.done()
+        if show:
+            _note(f"uploaded {args.input} as {mesh_id}")
+        if args.no_wait:
+            info = qem.info(mesh_id)
+        else:
+            build = _Bar("build", show)
+            try:
+                info = qem.wait_ready(
+                    mesh_id,
+                    timeout=args.timeout,
+                    progress=lambda info: build.show(info["progress"], info["status"]),
+                )
+            finally:
+                build.done()
+            if show:
+                _note(
+                    f"ready: {info['vertices']} vertices, {info['faces']} faces, "
+                    f"base mesh {info['min_vertices']} vertices"
+                )
+    if args.json:
+        _print_json(info)
+    else:
+        print(mesh_id)
+    return EXIT_OK
+
+
+def add_get(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "get",
+        parents=[_remote_parent()],
+        help="fetch a mesh at a vertex count",
+    )
+    parser.add_argument("id", help="mesh id")
+    parser.add_argument("-n", "--vertices", type=int, help="vertex count (default: full)")
+    parser.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        help="output file; its suffix gives the format (.ply .obj .glb .msgpack); - = stdout",
+    )
+    parser.add_argument("--format", choices=sorted(set(_FORMATS.values())))
+    parser.set_defaults(run=cmd_get)
+
+
+def cmd_get(args: argparse.Namespace) -> int:
+    if args.vertices is not None and args.vertices < 1:
+        raise CliError(f"-n {args.vertices}: the vertex count must be at least 1", EXIT_USAGE)
+    to_stdout = args.output == "-"
+    fmt = args.format
+    if fmt is None:
+        suffix = "" if to_stdout else Path(args.output).suffix.lower()
+        if suffix and suffix not in _FORMATS:
+            raise CliError(
+                f"cannot tell the format from {args.output!r}; use one of "
+                f"{', '.join(_FORMATS)} or --format",
+                EXIT_USAGE,
+            )
+        fmt = _FORMATS.get(suffix, "ply")
+    with _client(args) as qem:
+        lod = qem.fetch_lod(args.id, args.vertices, fmt)
+    assert lod is not None
+    if to_stdout:
+        sys.stdout.buffer.write(lod.content)
+        sys.stdout.buffer.flush()
+    else:
+        output = Path(args.output)
+        partial = output.with_name(output.name + ".part")
+        partial.write_bytes(lod.content)
+        partial.replace(output)
+    summary = {
+        "id": args.id,
+        "path": args.output,
+        "format": fmt,
+        "vertices": lod.n_vertices,
+        "faces": lod.n_faces,
+        "bytes": len(lod.content),
+        "error": lod.error,
+    }
+    if args.json and not to_stdout:
+        _print_json(summary)
+    else:
+        _note(
+            f"wrote {args.output}: {lod.n_vertices} vertices, {lod.n_faces} faces "
+            f"({len(lod.content)} bytes, {fmt})"
+        )
+    return EXIT_OK
+
+
+def add_ls(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser("ls", parents=[_remote_parent()], help="list meshes")
+    parser.set_defaults(run=cmd_ls)
+
+
+def cmd_ls(args: argparse.Namespace) -> int:
+    with _client(args) as qem:
+        meshes = qem.list()
+    if args.json:
+        _print_json(meshes)
+        return EXIT_OK
+    if not meshes:
+        _note("no meshes on this server")
+        return EXIT_OK
+    rows = [("ID", "STATUS", "VERTICES", "FACES", "BASE", "NAME")]
+    for mesh in meshes:
+        status = mesh["status"]
+        if status == "building":
+            status = f"building {mesh['progress']:.0%}"
+        rows.append(
+            (
+                mesh["id"],
+                status,
+                str(mesh["vertices"] or "-"),
+                str(mesh["faces"] or "-"),
+                str(mesh["min_vertices"] or "-"),
+                mesh["name"],
+            )
+        )
+    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]) - 1)]
+    for row in rows:
+        print(
+            "  ".join(cell.ljust(width) for cell, width in zip(row[:-1], widths, strict=True))
+            + "  "
+            + row[-1]
+        )
+    return EXIT_OK
+
+
+def add_rm(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser("rm", parents=[_remote_parent()], help="delete meshes")
+    parser.add_argument("ids", nargs="+", metavar="ID", help="mesh id")
+    parser.set_defaults(run=cmd_rm)
+
+
+def cmd_rm(args: argparse.Namespace) -> int:
+    deleted = []
+    with _client(args) as qem:
+        for mesh_id in args.ids:
+            qem.delete(mesh_id)
+            deleted.append(mesh_id)
+            if not args.json:
+                _note(f"deleted {mesh_id}")
+    if args.json:
+        _print_json({"deleted": deleted})
+    return EXIT_OK
+
+
+# -- entry point -----------------------------------------------------------------------------
+
+SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
+    add_serve,
+    add_upload,
+    add_get,
+    add_ls,
+    add_rm,
+]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="qem",
+        description="Progressive meshes: serve them, upload to a server, fetch any level.",
+        epilog="exit status: 0 ok, 1 refused or failed, 2 usage, 3 server unreachable, 4 timed out",
+    )
+    subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for add in SUBCOMMANDS:
+        add(subparsers)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the ``qem`` command; returns the exit status."""
+    args = build_parser().parse_args(argv)
+    try:
+        return args.run(args)
+    except CliError as exc:
+        _note(f"qem {args.command}: {exc}")
+        return exc.status
+    except QemConnectionError as exc:
+        _note(f"qem {args.command}: {exc}")
+        return EXIT_UNREACHABLE
+    except QemHTTPError as exc:
+        _note(f"qem {args.command}: {_describe_problem(exc)}")
+        return EXIT_FAILED
+    except QemBuildFailed as exc:
+        _note(f"qem {args.command}: {exc}")
+        return EXIT_FAILED
+    except TimeoutError as exc:
+        _note(f"qem {args.command}: {exc}")
+        return EXIT_TIMEOUT
+    except QemClientError as exc:
+        _note(f"qem {args.command}: {exc}")
+        return EXIT_FAILED
+    except KeyboardInterrupt:
+        _note("interrupted")
+        return EXIT_INTERRUPTED
+
+
+def _describe_problem(exc: QemHTTPError) -> str:
+    hints = {
+        401: " (set QEM_TOKEN to a write token of this server)",
+        403: " (QEM_TOKEN is not accepted by this server)",
+    }
+    return f"{exc.title or 'error'} ({exc.status}): {exc.detail}{hints.get(exc.status, '')}"
+
+
+if __name__ == "__main__":
+    sys.exit(main())

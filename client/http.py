@@ -1,0 +1,318 @@
+"""A Python client of the qem-lod HTTP API (httpx).
+
+    from client.http import QemClient
+
+    with QemClient("http://127.0.0.1:8000", token=None) as qem:
+        mesh_id = qem.upload("bunny.ply")
+        qem.wait_ready(mesh_id, timeout=600)
+        ply = qem.lod(mesh_id, 5000, "ply")
+        for frame in qem.splits(mesh_id, 5000, 20000):
+            ...
+
+Errors:
+
+    QemClientError
+    ├── QemConnectionError   the server cannot be reached (bad URL, down, timeout)
+    ├── QemHTTPError         the server answered with an error (problem details attached)
+    └── QemBuildFailed       the mesh's build failed (its reason attached)
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import httpx
+import msgpack
+
+__all__ = [
+    "DEFAULT_SERVER",
+    "LodResponse",
+    "QemBuildFailed",
+    "QemClient",
+    "QemClientError",
+    "QemConnectionError",
+    "QemHTTPError",
+]
+
+DEFAULT_SERVER = "http://127.0.0.1:8000"
+_CHUNK = 1 << 20
+
+
+class QemClientError(Exception):
+    """Base class of the errors this client raises."""
+
+
+class QemConnectionError(QemClientError):
+    """The server could not be reached or did not answer in time."""
+
+
+class QemHTTPError(QemClientError):
+    """The server answered with an error status.
+
+    status : HTTP status; problem : the RFC 9457 body as a dict (``type``, ``title``,
+    ``detail``...), or a minimal one built from the status when the body is not JSON.
+    """
+
+    def __init__(self, status: int, problem: dict[str, Any]) -> None:
+        self.status = status
+        self.problem = problem
+        self.type = str(problem.get("type", "about:blank"))
+        self.title = str(problem.get("title", ""))
+        self.detail = str(problem.get("detail", ""))
+        super().__init__(
+            f"{status} {self.title}: {self.detail}" if self.detail else f"{status} {self.title}"
+        )
+
+
+class QemBuildFailed(QemClientError):
+    """The server could not build the mesh. info : its metadata; reason : why."""
+
+    def __init__(self, info: dict[str, Any]) -> None:
+        self.info = info
+        self.reason = info.get("error") or "unknown reason"
+        super().__init__(f"mesh {info.get('id')} ({info.get('name')}) failed: {self.reason}")
+
+
+@dataclass(frozen=True)
+class LodResponse:
+    """A level as served: the encoded mesh and what the server says about it."""
+
+    content: bytes
+    media_type: str
+    n_vertices: int
+    n_faces: int
+    error: float | None
+    etag: str | None
+
+
+class QemClient:
+    """Client of one qem-lod server.
+
+    base_url : e.g. ``http://127.0.0.1:8000``; token : bearer token for writes (upload,
+    delete) when the server requires one; timeout : seconds per request (connect, read).
+    """
+
+    def __init__(
+        self,
+        base_url: str = DEFAULT_SERVER,
+        token: str | None = None,
+        *,
+        timeout: float = 60.0,
+        transport: httpx.BaseTransport | None = None,
+    ) -> None:
+        headers = {"Authorization": f"Bearer {token}"} if token else {}
+        self.base_url = base_url.rstrip("/")
+        self._http = httpx.Client(
+            base_url=self.base_url, headers=headers, timeout=timeout, transport=transport
+        )
+
+    @classmethod
+    def from_env(cls, base_url: str | None = None, **kwargs: Any) -> QemClient:
+        """A client for ``base_url`` or $QEM_SERVER, with the token from $QEM_TOKEN."""
+        return cls(
+            base_url or os.environ.get("QEM_SERVER") or DEFAULT_SERVER,
+            token=os.environ.get("QEM_TOKEN") or None,
+            **kwargs,
+        )
+
+    def close(self) -> None:
+        self._http.close()
+
+    def __enter__(self) -> QemClient:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    # -- requests ---------------------------------------------------------------------
+
+    def _request(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
+        try:
+            response = self._http.request(method, path, **kwargs)
+        except httpx.TransportError as exc:
+            raise QemConnectionError(self._describe(exc)) from exc
+        _raise_for_problem(response)
+        return response
+
+    def _describe(self, exc: httpx.TransportError) -> str:
+        if isinstance(exc, httpx.TimeoutException):
+            return f"{self.base_url} did not answer in time ({type(exc).__name__})"
+        return f"cannot reach the qem-lod server at {self.base_url} ({exc or type(exc).__name__})"
+
+    def health(self) -> dict[str, Any]:
+        return self._request("GET", "/healthz").json()
+
+    def upload(
+        self,
+        path: str | os.PathLike[str],
+        *,
+        name: str | None = None,
+        options: dict[str, Any] | None = None,
+        progress: Callable[[int, int], None] | None = None,
+    ) -> str:
+        """Upload a mesh file (streamed, never read whole); returns the new mesh id.
+
+        name : file name to record (default: the file's); its extension gives the format.
+        options : build options (``{"weighting": "volume"}``), see the server's API docs.
+        progress : called as ``progress(bytes_sent, total_bytes)``.
+        """
+        path = Path(path)
+        total = path.stat().st_size
+
+        def body() -> Iterator[bytes]:
+            sent = 0
+            if progress is not None:
+                progress(0, total)
+            with open(path, "rb") as handle:
+                while chunk := handle.read(_CHUNK):
+                    sent += len(chunk)
+                    yield chunk
+                    if progress is not None:
+                        progress(sent, total)
+
+        params: dict[str, Any] = {"name": name or path.name}
+        for key, value in (options or {}).items():
+            params[key] = str(value).lower() if isinstance(value, bool) else value
+        response = self._request(
+            "POST",
+            "/v1/meshes",
+            params=params,
+            content=body(),
+            headers={"Content-Type": "application/octet-stream", "Content-Length": str(total)},
+        )
+        return response.json()["id"]
+
+    def list(self) -> list[dict[str, Any]]:
+        """Metadata of every mesh on the server, oldest first."""
+        return self._request("GET", "/v1/meshes").json()["meshes"]
+
+    def info(self, mesh_id: str) -> dict[str, Any]:
+        """Metadata of one mesh (``status``, ``progress``, ``vertices``...)."""
+        return self._request("GET", f"/v1/meshes/{mesh_id}").json()
+
+    def wait_ready(
+        self,
+        mesh_id: str,
+        *,
+        progress: Callable[[dict[str, Any]], None] | None = None,
+        timeout: float | None = None,
+        interval: float = 0.25,
+    ) -> dict[str, Any]:
+        """Poll until the mesh is ready; returns its metadata.
+
+        progress : called with the metadata after each poll (``info["progress"]`` is 0..1).
+        Raises QemBuildFailed if the build fails, TimeoutError after `timeout` seconds.
+        """
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            info = self.info(mesh_id)
+            if progress is not None:
+                progress(info)
+            if info["status"] == "ready":
+                return info
+            if info["status"] == "failed":
+                raise QemBuildFailed(info)
+            if deadline is not None and time.monotonic() >= deadline:
+                raise TimeoutError(
+                    f"mesh {mesh_id} is still {info['status']} "
+                    f"({info['progress']:.0%}) after {timeout} s"
+                )
+            time.sleep(interval)
+
+    def fetch_lod(
+        self,
+        mesh_id: str,
+        n: int | None = None,
+        format: str = "ply",
+        *,
+        etag: str | None = None,
+    ) -> LodResponse | None:
+        """The mesh at `n` vertices (clamped by the server; None: the full mesh).
+
+        With `etag`, returns None if the level is unchanged (304)."""
+        params: dict[str, Any] = {"format": format}
+        if n is not None:
+            params["vertices"] = n
+        headers = {"If-None-Match": etag} if etag else {}
+        response = self._request("GET", f"/v1/meshes/{mesh_id}/lod", params=params, headers=headers)
+        if response.status_code == 304:
+            return None
+        error = response.headers.get("X-Lod-Error")
+        return LodResponse(
+            content=response.content,
+            media_type=response.headers.get("Content-Type", ""),
+            n_vertices=int(response.headers["X-Lod-Vertices"]),
+            n_faces=int(response.headers["X-Lod-Faces"]),
+            error=float(error) if error is not None else None,
+            etag=response.headers.get("ETag"),
+        )
+
+    def lod(self, mesh_id: str, n: int | None = None, format: str = "ply") -> bytes:
+        """The mesh at `n` vertices, encoded as `format` (ply, obj, glb, msgpack)."""
+        lod = self.fetch_lod(mesh_id, n, format)
+        assert lod is not None
+        return lod.content
+
+    def splits(self, mesh_id: str, n1: int | None = None, n2: int | None = None) -> Iterator[bytes]:
+        """The vertex-split stream refining level `n1` to `n2` (None: base and full),
+        as it arrives: one msgpack frame (bytes) at a time, for
+        `qem_core.stream.decode_split_frames`."""
+        params = {key: value for key, value in (("from", n1), ("to", n2)) if value is not None}
+        try:
+            with self._http.stream(
+                "GET", f"/v1/meshes/{mesh_id}/splits", params=params
+            ) as response:
+                if response.is_error:
+                    response.read()
+                    _raise_for_problem(response)
+                yield from _frames(response.iter_bytes())
+        except httpx.TransportError as exc:
+            raise QemConnectionError(self._describe(exc)) from exc
+
+    def delete(self, mesh_id: str) -> None:
+        """Remove a mesh and its data from the server."""
+        self._request("DELETE", f"/v1/meshes/{mesh_id}")
+
+
+def _frames(chunks: Iterator[bytes]) -> Iterator[bytes]:
+    """Cut a byte stream of concatenated msgpack objects into one bytes per object."""
+    unpacker = msgpack.Unpacker(max_buffer_size=1 << 30)
+    buffer = bytearray()
+    base = start = 0  # stream offsets of buffer[0] and of the next frame
+    for chunk in chunks:
+        unpacker.feed(chunk)
+        buffer += chunk
+        while True:
+            try:
+                unpacker.skip()
+            except msgpack.OutOfData:
+                break
+            end = unpacker.tell()
+            yield bytes(buffer[start - base : end - base])
+            start = end
+        del buffer[: start - base]
+        base = start
+    if buffer:
+        raise QemClientError(f"the split stream ended inside a frame ({len(buffer)} bytes left)")
+
+
+def _raise_for_problem(response: httpx.Response) -> None:
+    if not response.is_error:
+        return
+    try:
+        problem = response.json()
+        if not isinstance(problem, dict):
+            raise ValueError
+    except ValueError:
+        problem = {
+            "type": "about:blank",
+            "title": response.reason_phrase,
+            "status": response.status_code,
+            "detail": response.text[:500],
+        }
+    raise QemHTTPError(response.status_code, problem)

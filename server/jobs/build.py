@@ -1,0 +1,131 @@
+"""One build attempt: read the upload, build the progressive mesh, store it, record the
+outcome. Independent of the queue that runs it.
+
+The attempt claims the record first; every later write is fenced by the claim token, and
+a progress write that finds the record gone or taken over aborts the build.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+
+import qem_core
+from qem_core import codecs
+
+from ..storage import Storage, new_token, qpm_key
+
+__all__ = ["BuildAborted", "run_build"]
+
+log = logging.getLogger("qem.jobs")
+
+# Share of the progress bar given to reading the upload; saving takes the last step.
+_READ_SHARE = 0.02
+_BUILD_SHARE = 0.96
+
+
+class BuildAborted(Exception):
+    """The attempt lost its claim (mesh deleted, build requeued) or its parent died."""
+
+
+class _ProgressWriter:
+    """progress(fraction) for qem_core, writing to the record at most every `interval`
+    seconds, and aborting the build when it should stop."""
+
+    def __init__(
+        self,
+        storage: Storage,
+        mesh_id: str,
+        token: str,
+        interval: float,
+        should_abort: Callable[[], bool] | None,
+    ) -> None:
+        self._storage = storage
+        self._mesh_id = mesh_id
+        self._token = token
+        self._interval = interval
+        self._should_abort = should_abort
+        self._last = time.monotonic()
+
+    def __call__(self, fraction: float, *, force: bool = False) -> None:
+        now = time.monotonic()
+        if not force and now - self._last < self._interval:
+            return
+        self._last = now
+        if self._should_abort is not None and self._should_abort():
+            raise BuildAborted("the server that started this build is gone")
+        if not self._storage.metadata.set_progress(self._mesh_id, self._token, fraction):
+            raise BuildAborted("the mesh was deleted or its build was requeued")
+
+    def build_share(self, fraction: float) -> None:
+        self(_READ_SHARE + _BUILD_SHARE * min(1.0, max(0.0, float(fraction))))
+
+
+def run_build(
+    storage: Storage,
+    mesh_id: str,
+    *,
+    progress_interval: float = 0.5,
+    should_abort: Callable[[], bool] | None = None,
+) -> str:
+    """Build the queued mesh `mesh_id` and record the outcome.
+
+    Returns the status it left: ``ready``, ``failed``, or ``skipped`` when the record was
+    not queued (already claimed, finished or deleted) or the attempt was aborted. Bad
+    input never raises: it becomes ``failed`` with the reason in the record's ``error``.
+    """
+    token = new_token()
+    record = storage.metadata.claim(mesh_id, token)
+    if record is None:
+        return "skipped"
+    progress = _ProgressWriter(storage, mesh_id, token, progress_interval, should_abort)
+    started = time.monotonic()
+    try:
+        with storage.blobs.local_path(record.upload_key) as path:
+            mesh = codecs.load_mesh(path, name=record.name)
+        progress(_READ_SHARE, force=True)
+        options = qem_core.BuildOptions.from_mapping(record.options)
+        pm = qem_core.build_mesh(mesh, options, progress=progress.build_share)
+        key = qpm_key(mesh_id, token)
+        with storage.blobs.staged_path(key) as staged:
+            pm.save(staged)
+        bbox = tuple(tuple(float(x) for x in corner) for corner in pm.bbox)
+        finished = storage.metadata.finish(
+            mesh_id,
+            token,
+            qpm_key=key,
+            n_vertices=pm.n_full,
+            n_faces=pm.n_faces_full,
+            n_base=pm.n_base,
+            bbox=bbox,
+        )
+        if not finished:
+            storage.blobs.delete(key)
+            return "skipped"
+        log.info(
+            "mesh %s (%s) ready: %d vertices, %d faces, base %d, %.1f s",
+            mesh_id,
+            record.name,
+            pm.n_full,
+            pm.n_faces_full,
+            pm.n_base,
+            time.monotonic() - started,
+        )
+        return "ready"
+    except BuildAborted as exc:
+        log.info("build of mesh %s stopped: %s", mesh_id, exc)
+        return "skipped"
+    except qem_core.QemError as exc:
+        reason = str(exc) or type(exc).__name__
+    except FileNotFoundError:
+        reason = "the uploaded file is missing from storage; upload the mesh again"
+    except MemoryError:
+        reason = "out of memory while building; the mesh is too large for this server"
+    except Exception as exc:  # a bug, not bad input: keep the reason and the traceback
+        log.exception("build of mesh %s crashed", mesh_id)
+        reason = f"internal error while building ({type(exc).__name__}: {exc})"
+    if storage.metadata.fail(mesh_id, reason, token=token):
+        log.info("mesh %s (%s) failed: %s", mesh_id, record.name, reason)
+        return "failed"
+    return "skipped"

@@ -1,0 +1,127 @@
+"""End-to-end fixtures: the real ``qem serve`` in a subprocess on 127.0.0.1, a temporary
+data directory, and the shared test meshes.
+
+The server is started with ``--port 0``; the port it got is read from uvicorn's startup
+line, so there is no race for a free port and no polling loop.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from client.http import QemClient
+
+REPO = Path(__file__).resolve().parents[2]
+SHARED_MESHES = REPO.parent / "shared" / "meshes"
+STARTUP_TIMEOUT = 120.0
+_RUNNING = re.compile(r"Uvicorn running on (http://127\.0\.0\.1:\d+)")
+
+
+def shared_mesh(name: str) -> Path:
+    """A mesh of ../shared/meshes, or skip the test when the folder is not there."""
+    path = SHARED_MESHES / name
+    if not path.is_file():
+        pytest.skip(f"{path} is missing (the shared meshes live beside the repository)")
+    return path
+
+
+class ServerProcess:
+    """``python -m client.cli serve`` on 127.0.0.1 with its own data directory.
+
+    log : everything the server printed so far (stdout and stderr).
+    """
+
+    def __init__(self, data_dir: Path, env: dict[str, str] | None = None) -> None:
+        self.data_dir = data_dir
+        self.env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
+        self.env.pop("QEM_TOKEN", None)
+        self.process: subprocess.Popen[str] | None = None
+        self.url = ""
+        self.log_lines: list[str] = []
+        self._started = threading.Event()
+
+    @property
+    def log(self) -> str:
+        return "".join(self.log_lines)
+
+    def start(self) -> ServerProcess:
+        command = [
+            sys.executable, "-m", "client.cli", "serve", "--host", "127.0.0.1", "--port",
+            "0", "--data-dir", str(self.data_dir), "--workers", "1", "--log-level", "info",
+        ]
+        self._started.clear()
+        self.process = subprocess.Popen(
+            command, cwd=REPO, env=self.env, stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT, text=True,
+        )
+        threading.Thread(target=self._drain, args=(self.process,), daemon=True).start()
+        if not self._started.wait(STARTUP_TIMEOUT) or not self.url:
+            self.stop()
+            raise RuntimeError(f"qem serve did not start:\n{self.log}")
+        return self
+
+    def _drain(self, process: subprocess.Popen[str]) -> None:
+        assert process.stdout is not None
+        for line in process.stdout:
+            self.log_lines.append(line)
+            match = _RUNNING.search(line)
+            if match:
+                self.url = match.group(1)
+                self._started.set()
+        self._started.set()  # exited: do not make start() wait for nothing
+
+    def client(self, token: str | None = None) -> QemClient:
+        return QemClient(self.url, token=token)
+
+    def stop(self, sig: int = signal.SIGTERM, timeout: float = 30.0) -> int | None:
+        """Stop the server with `sig`; returns its exit status."""
+        if self.process is None:
+            return None
+        process, self.process = self.process, None
+        if process.poll() is None:
+            process.send_signal(sig)
+        try:
+            return process.wait(timeout)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            return process.wait(timeout)
+
+
+@pytest.fixture
+def start_server(tmp_path) -> Iterator:
+    """start_server(env=None, data_dir=None) -> a started ServerProcess; all stopped at
+    the end of the test."""
+    started: list[ServerProcess] = []
+
+    def start(env: dict[str, str] | None = None, data_dir: Path | None = None):
+        server = ServerProcess(data_dir or tmp_path / "data", env).start()
+        started.append(server)
+        return server
+
+    yield start
+    for server in started:
+        server.stop()
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory) -> Iterator[ServerProcess]:
+    """One server for the tests of a module (uploads limited to 4 MiB)."""
+    data_dir = tmp_path_factory.mktemp("qem") / "data"
+    running = ServerProcess(data_dir, {"QEM_MAX_UPLOAD_BYTES": str(4 * 2**20)}).start()
+    yield running
+    running.stop()
+
+
+@pytest.fixture
+def qem(server) -> Iterator[QemClient]:
+    with server.client() as client:
+        yield client

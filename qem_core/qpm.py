@@ -74,7 +74,9 @@ def save_qpm(pm: ProgressiveMesh, path) -> None:
 
 def load(source) -> ProgressiveMesh:
     """Read a .qpm file (a path or the file's bytes)."""
-    blob = source if isinstance(source, bytes | bytearray | memoryview) else Path(source).read_bytes()
+    blob = (
+        source if isinstance(source, bytes | bytearray | memoryview) else Path(source).read_bytes()
+    )
     blob = bytes(blob)
     fixed = len(MAGIC) + 8
     if len(blob) < fixed + 4 or blob[: len(MAGIC)] != MAGIC:
@@ -110,7 +112,9 @@ def load(source) -> ProgressiveMesh:
         if not 0 <= offset <= data_length - nbytes:
             raise CorruptFileError(f".qpm array {name!r} lies outside the file")
         arrays[name] = np.frombuffer(
-            blob, dtype=dtype, count=nbytes // np.dtype(dtype).itemsize,
+            blob,
+            dtype=dtype,
+            count=nbytes // np.dtype(dtype).itemsize,
             offset=data_start + offset,
         ).reshape(shape)
     return _checked_progressive_mesh(arrays, metadata)
@@ -131,9 +135,13 @@ def _checked_progressive_mesh(arrays: dict, metadata: dict) -> ProgressiveMesh:
     if base_faces.size and (base_faces.min() < 0 or base_faces.max() >= base.shape[0]):
         raise CorruptFileError(".qpm base faces use vertices outside the base mesh")
     check_splits(
-        base.shape[0], int(level_faces[0]), arrays["split_vertex"],
-        arrays["face_corners"][level_faces[0]:], np.diff(level_faces),
-        arrays["relabel_offsets"], arrays["relabel_faces"],
+        base.shape[0],
+        int(level_faces[0]),
+        arrays["split_vertex"],
+        arrays["face_corners"][level_faces[0] :],
+        np.diff(level_faces),
+        arrays["relabel_offsets"],
+        arrays["relabel_faces"],
     )
     if "bbox" not in metadata:
         raise CorruptFileError(".qpm metadata lacks the bounding box")

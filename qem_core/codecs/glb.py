@@ -1,0 +1,410 @@
+"""GLB (binary glTF 2.0, Khronos): reader and writer.
+
+Reader: every triangle primitive (mode 4) of every entry of ``meshes`` is read and the
+primitives are concatenated, indices offset. Node transforms and the scene graph are
+ignored: positions are returned in each mesh's own coordinates, and a mesh used by
+several nodes appears once. Attributes: POSITION (required), NORMAL -> "normal",
+COLOR_0 -> "color", TEXCOORD_0 -> "uv" (an attribute is kept only when every primitive
+has it; normalised integer components are scaled to [0, 1]). glTF's texture origin is
+the top-left corner, the Mesh's (like OBJ's) the bottom-left: v is flipped on the way in
+and out. The base-colour image of the first primitive's material, when embedded (a
+bufferView or a data: URI), becomes `Mesh.texture`. Sparse accessors, external files
+and Draco compression are refused.
+
+Writer: one mesh, one primitive, one node; POSITION float32 with min/max, indices
+uint16 when there are at most 65535 vertices (65535 itself is the reserved restart
+value) else uint32, NORMAL (normalised to unit length, as glTF requires), COLOR_0
+float32 in [0, 1], TEXCOORD_0 float32; a material that is not metallic, with the
+texture (PNG or JPEG bytes, embedded) as base colour when one is given together with
+UVs. docs/formats.md has the exact layout.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import struct
+
+import numpy as np
+
+from ..errors import InvalidMeshError, MeshFormatError
+from ..mesh import Mesh
+from ._images import image_media_type
+
+__all__ = ["read_glb", "write_glb", "is_glb"]
+
+_MAGIC = b"glTF"
+_JSON_CHUNK = 0x4E4F534A
+_BIN_CHUNK = 0x004E4942
+_COMPONENT_TYPES = {
+    5120: np.dtype("i1"),
+    5121: np.dtype("u1"),
+    5122: np.dtype("<i2"),
+    5123: np.dtype("<u2"),
+    5125: np.dtype("<u4"),
+    5126: np.dtype("<f4"),
+}
+_WIDTHS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
+_ATTRIBUTES = {"NORMAL": "normal", "COLOR_0": "color", "TEXCOORD_0": "uv"}
+_TRIANGLES = 4
+_ARRAY_BUFFER = 34962
+_ELEMENT_ARRAY_BUFFER = 34963
+_FLOAT = 5126
+_LINEAR, _LINEAR_MIPMAP_LINEAR, _REPEAT = 9729, 9987, 10497
+
+
+def is_glb(data: bytes) -> bool:
+    return data[:4] == _MAGIC
+
+
+def read_glb(data: bytes) -> Mesh:
+    """Decode a GLB file into a Mesh. Raises MeshFormatError."""
+    gltf, binary = _chunks(data)
+    try:
+        return _read_meshes(gltf, _buffers(gltf, binary))
+    except MeshFormatError:
+        raise
+    except (KeyError, IndexError, TypeError, ValueError, AttributeError) as error:
+        raise MeshFormatError(
+            f"GLB JSON does not follow glTF 2.0 ({type(error).__name__}: {error})"
+        ) from None
+
+
+def write_glb(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    vertex_attributes: dict[str, np.ndarray],
+    texture: bytes | None = None,
+) -> bytes:
+    """Encode as a GLB: see the module docstring."""
+    blob = _BinaryBuilder()
+    positions = vertices.astype(np.float32)
+    attributes = {
+        "POSITION": blob.accessor(
+            positions,
+            "VEC3",
+            _ARRAY_BUFFER,
+            bounds=(positions.min(axis=0).tolist(), positions.max(axis=0).tolist()),
+        )
+    }
+    normal = vertex_attributes.get("normal")
+    if normal is not None:
+        attributes["NORMAL"] = blob.accessor(_unit(normal), "VEC3", _ARRAY_BUFFER)
+    color = vertex_attributes.get("color")
+    if color is not None:
+        color = np.clip(color, 0.0, 1.0).astype(np.float32)
+        attributes["COLOR_0"] = blob.accessor(color, f"VEC{color.shape[1]}", _ARRAY_BUFFER)
+    uv = vertex_attributes.get("uv")
+    if uv is not None:
+        flipped = np.stack([uv[:, 0], 1.0 - uv[:, 1]], axis=1).astype(np.float32)
+        attributes["TEXCOORD_0"] = blob.accessor(flipped, "VEC2", _ARRAY_BUFFER)
+    index_type = "<u2" if vertices.shape[0] <= 0xFFFF else "<u4"
+    indices = blob.accessor(faces.astype(index_type).reshape(-1), "SCALAR", _ELEMENT_ARRAY_BUFFER)
+    material: dict = {
+        "pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 1.0},
+        "doubleSided": False,
+    }
+    gltf: dict = {
+        "asset": {"version": "2.0", "generator": "qem-lod"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [
+            {
+                "primitives": [
+                    {
+                        "attributes": attributes,
+                        "indices": indices,
+                        "mode": _TRIANGLES,
+                        "material": 0,
+                    }
+                ]
+            }
+        ],
+        "materials": [material],
+    }
+    if texture is not None and uv is not None:
+        image_view = blob.view(texture, target=None)
+        gltf["images"] = [{"bufferView": image_view, "mimeType": _image_type(texture)}]
+        gltf["samplers"] = [
+            {
+                "magFilter": _LINEAR,
+                "minFilter": _LINEAR_MIPMAP_LINEAR,
+                "wrapS": _REPEAT,
+                "wrapT": _REPEAT,
+            }
+        ]
+        gltf["textures"] = [{"sampler": 0, "source": 0}]
+        material["pbrMetallicRoughness"]["baseColorTexture"] = {"index": 0}
+    gltf["accessors"] = blob.accessors
+    gltf["bufferViews"] = blob.views
+    binary = blob.data()
+    gltf["buffers"] = [{"byteLength": len(binary)}]
+    json_bytes = _pad(json.dumps(gltf, separators=(",", ":")).encode("utf-8"), b" ")
+    total = 12 + 8 + len(json_bytes) + 8 + len(binary)
+    return b"".join(
+        [
+            struct.pack("<4sII", _MAGIC, 2, total),
+            struct.pack("<II", len(json_bytes), _JSON_CHUNK),
+            json_bytes,
+            struct.pack("<II", len(binary), _BIN_CHUNK),
+            binary,
+        ]
+    )
+
+
+class _BinaryBuilder:
+    """Collects bufferViews and accessors into one 4-byte-aligned binary buffer."""
+
+    def __init__(self) -> None:
+        self._parts: list[bytes] = []
+        self._size = 0
+        self.views: list[dict] = []
+        self.accessors: list[dict] = []
+
+    def view(self, payload: bytes, target: int | None) -> int:
+        view = {"buffer": 0, "byteOffset": self._size, "byteLength": len(payload)}
+        if target is not None:
+            view["target"] = target
+        padded = _pad(payload, b"\0")
+        self._parts.append(padded)
+        self._size += len(padded)
+        self.views.append(view)
+        return len(self.views) - 1
+
+    def accessor(
+        self,
+        values: np.ndarray,
+        kind: str,
+        target: int,
+        bounds: tuple[list[float], list[float]] | None = None,
+    ) -> int:
+        component = {"<f4": 5126, "<u2": 5123, "<u4": 5125}[values.dtype.newbyteorder("<").str]
+        accessor = {
+            "bufferView": self.view(np.ascontiguousarray(values).tobytes(), target),
+            "componentType": component,
+            "count": int(values.shape[0]),
+            "type": kind,
+        }
+        if bounds is not None:
+            accessor["min"], accessor["max"] = bounds
+        self.accessors.append(accessor)
+        return len(self.accessors) - 1
+
+    def data(self) -> bytes:
+        return b"".join(self._parts)
+
+
+def _pad(payload: bytes, filler: bytes) -> bytes:
+    return payload + filler * (-len(payload) % 4)
+
+
+def _unit(normals: np.ndarray) -> np.ndarray:
+    """Normals scaled to unit length; a zero normal becomes +z (glTF allows no other)."""
+    normals = normals.astype(np.float64)
+    length = np.linalg.norm(normals, axis=1)
+    unit = np.zeros_like(normals)
+    unit[:, 2] = 1.0
+    nonzero = length > 0.0
+    unit[nonzero] = normals[nonzero] / length[nonzero, None]
+    return unit.astype(np.float32)
+
+
+def _image_type(texture: bytes) -> str:
+    media_type = image_media_type(texture)
+    if media_type is None:
+        raise InvalidMeshError("texture must be PNG or JPEG bytes (glTF embeds no other format)")
+    return media_type
+
+
+def _chunks(data: bytes) -> tuple[dict, bytes]:
+    """The JSON document and the BIN chunk (b"" if none) of a GLB."""
+    if len(data) < 12 or data[:4] != _MAGIC:
+        raise MeshFormatError("not a GLB file: it does not start with the 'glTF' magic")
+    _, version, length = struct.unpack_from("<4sII", data, 0)
+    if version != 2:
+        raise MeshFormatError(f"GLB version {version} is not supported; only glTF 2.0 is")
+    if length > len(data):
+        raise MeshFormatError(
+            f"GLB header says {length} bytes but the file has {len(data)}: it is truncated"
+        )
+    gltf = None
+    binary = b""
+    position = 12
+    while position + 8 <= length:
+        chunk_length, chunk_type = struct.unpack_from("<II", data, position)
+        start = position + 8
+        if start + chunk_length > length:
+            raise MeshFormatError("GLB chunk runs past the end of the file: it is truncated")
+        if chunk_type == _JSON_CHUNK and gltf is None:
+            try:
+                gltf = json.loads(data[start : start + chunk_length].decode("utf-8"))
+            except (UnicodeDecodeError, json.JSONDecodeError) as error:
+                raise MeshFormatError(f"GLB JSON chunk is not valid JSON: {error}") from None
+        elif chunk_type == _BIN_CHUNK and not binary:
+            binary = data[start : start + chunk_length]
+        position = start + chunk_length
+    if not isinstance(gltf, dict):
+        raise MeshFormatError("GLB has no JSON chunk holding a glTF object")
+    return gltf, binary
+
+
+def _buffers(gltf: dict, binary: bytes) -> list[bytes]:
+    buffers = []
+    for number, buffer in enumerate(gltf.get("buffers", [])):
+        uri = buffer.get("uri")
+        if uri is None:
+            if number != 0:
+                raise MeshFormatError("GLB buffer without a URI other than buffer 0")
+            content = binary
+        elif uri.startswith("data:") and ";base64," in uri:
+            content = base64.b64decode(uri.split(",", 1)[1], validate=True)
+        else:
+            raise MeshFormatError(
+                f"GLB refers to an external file {uri[:60]!r}; embed all data in the GLB"
+            )
+        if len(content) < buffer["byteLength"]:
+            raise MeshFormatError(
+                f"GLB buffer {number} should hold {buffer['byteLength']} bytes but has "
+                f"{len(content)}: the file is truncated"
+            )
+        buffers.append(content)
+    return buffers
+
+
+def _read_meshes(gltf: dict, buffers: list[bytes]) -> Mesh:
+    if "KHR_draco_mesh_compression" in gltf.get("extensionsRequired", []):
+        raise MeshFormatError("Draco-compressed GLB is not supported; export without Draco")
+    positions, faces, attributes, offset = [], [], [], 0
+    first_primitive = None
+    for mesh in gltf.get("meshes", []):
+        for primitive in mesh["primitives"]:
+            if primitive.get("mode", _TRIANGLES) != _TRIANGLES:
+                continue  # points and lines carry no surface
+            if first_primitive is None:
+                first_primitive = primitive
+            names = primitive["attributes"]
+            vertices = _accessor(gltf, buffers, names["POSITION"], "POSITION", normalized=False)
+            if vertices.shape[1] != 3:
+                raise MeshFormatError("GLB POSITION accessor must be VEC3")
+            if "indices" in primitive:
+                indices = _accessor(gltf, buffers, primitive["indices"], "indices", False)
+                indices = indices.reshape(-1).astype(np.int64)
+            else:
+                indices = np.arange(vertices.shape[0], dtype=np.int64)
+            if indices.size % 3:
+                raise MeshFormatError(
+                    f"GLB triangle primitive has {indices.size} indices, not a multiple of 3"
+                )
+            positions.append(vertices.astype(np.float64))
+            faces.append(indices.reshape(-1, 3) + offset)
+            attributes.append(
+                {
+                    name: _accessor(gltf, buffers, names[key], key, normalized=True)
+                    for key, name in _ATTRIBUTES.items()
+                    if key in names
+                }
+            )
+            offset += vertices.shape[0]
+    if first_primitive is None:
+        raise MeshFormatError("GLB has no triangle primitive: nothing to simplify")
+    vertex_attributes = {}
+    for name in _ATTRIBUTES.values():
+        if all(name in a for a in attributes):
+            vertex_attributes[name] = np.concatenate([a[name] for a in attributes]).astype(
+                np.float32
+            )
+    if "uv" in vertex_attributes:
+        vertex_attributes["uv"] = vertex_attributes["uv"][:, :2]
+        vertex_attributes["uv"][:, 1] = 1.0 - vertex_attributes["uv"][:, 1]
+    return Mesh(
+        vertices=np.concatenate(positions),
+        faces=np.concatenate(faces),
+        vertex_attributes=vertex_attributes,
+        texture=_base_color_image(gltf, buffers, first_primitive),
+    )
+
+
+def _item(gltf: dict, key: str, index: object) -> dict:
+    """gltf[key][index], checking that the index exists (no negative indices)."""
+    items = gltf.get(key, [])
+    if not isinstance(index, int) or not 0 <= index < len(items):
+        raise MeshFormatError(f"GLB refers to {key}[{index!r}], which does not exist")
+    return items[index]
+
+
+def _view_bytes(gltf: dict, buffers: list[bytes], index: object) -> tuple[bytes, int, int, int]:
+    """(buffer, start, length, stride or 0) of bufferView `index`, bounds checked."""
+    view = _item(gltf, "bufferViews", index)
+    buffer_index = view["buffer"]
+    if not isinstance(buffer_index, int) or not 0 <= buffer_index < len(buffers):
+        raise MeshFormatError(f"GLB bufferView {index} refers to a missing buffer")
+    buffer = buffers[buffer_index]
+    start, length = int(view.get("byteOffset", 0)), int(view["byteLength"])
+    if start < 0 or length < 0 or start + length > len(buffer):
+        raise MeshFormatError(
+            f"GLB bufferView {index} spans bytes {start}..{start + length} of a "
+            f"{len(buffer)}-byte buffer: the file is truncated or damaged"
+        )
+    return buffer, start, length, int(view.get("byteStride", 0))
+
+
+def _accessor(
+    gltf: dict, buffers: list[bytes], index: object, what: str, normalized: bool
+) -> np.ndarray:
+    """(count, width) copy of an accessor's values; normalised integers scaled to
+    [0, 1] (or [-1, 1]) when `normalized` allows it."""
+    accessor = _item(gltf, "accessors", index)
+    if "sparse" in accessor:
+        raise MeshFormatError(f"GLB {what} uses a sparse accessor, which is not supported")
+    if "bufferView" not in accessor:
+        raise MeshFormatError(f"GLB {what} accessor has no data (no bufferView)")
+    dtype = _COMPONENT_TYPES.get(accessor["componentType"])
+    width = _WIDTHS.get(accessor["type"])
+    if dtype is None or width is None:
+        raise MeshFormatError(
+            f"GLB {what} accessor has componentType {accessor['componentType']} and type "
+            f"{accessor['type']!r}; expected a glTF 2.0 scalar or vector type"
+        )
+    count = int(accessor["count"])
+    buffer, start, length, stride = _view_bytes(gltf, buffers, accessor["bufferView"])
+    element = dtype.itemsize * width
+    stride = stride or element
+    offset = int(accessor.get("byteOffset", 0))
+    needed = offset + stride * (count - 1) + element if count > 0 else 0
+    if count < 0 or offset < 0 or stride < element or needed > length:
+        raise MeshFormatError(
+            f"GLB {what} accessor needs {needed} bytes ({count} values) but its bufferView "
+            f"has {length}: the file is truncated or damaged"
+        )
+    values = np.ndarray(
+        (count, width),
+        dtype=dtype,
+        buffer=buffer,
+        offset=start + offset,
+        strides=(stride, dtype.itemsize),
+    )
+    if normalized and dtype.kind in "iu" and accessor.get("normalized", False):
+        return np.maximum(values / np.iinfo(dtype).max, -1.0)
+    return np.array(values)
+
+
+def _base_color_image(gltf: dict, buffers: list[bytes], primitive: dict) -> bytes | None:
+    """The embedded base-colour image bytes of a primitive's material, or None."""
+    if "material" not in primitive:
+        return None
+    material = _item(gltf, "materials", primitive["material"])
+    texture_info = material.get("pbrMetallicRoughness", {}).get("baseColorTexture")
+    if texture_info is None:
+        return None
+    source = _item(gltf, "textures", texture_info["index"]).get("source")
+    if source is None:
+        return None
+    image = _item(gltf, "images", source)
+    if "bufferView" in image:
+        buffer, start, length, _ = _view_bytes(gltf, buffers, image["bufferView"])
+        return bytes(buffer[start : start + length])
+    uri = image.get("uri", "")
+    if uri.startswith("data:") and ";base64," in uri:
+        return base64.b64decode(uri.split(",", 1)[1], validate=True)
+    return None

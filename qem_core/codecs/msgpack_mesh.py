@@ -1,0 +1,195 @@
+"""The compact msgpack mesh form, "qem-mesh-msgpack" version 1.
+
+One msgpack map (string keys; docs/formats.md is the reference a JavaScript viewer
+decodes from):
+
+    format          "qem-mesh-msgpack"
+    version         1
+    vertex_count    n
+    face_count      m
+    bbox            [min_x, min_y, min_z, max_x, max_y, max_z] (float64) of the positions
+    position_encoding  "f32" or "u16"
+    position_bits   b, 1..16 (only with "u16")
+    positions       bin: 3n little-endian values, x y z per vertex; "u16" values q are
+                    on a grid over bbox: x = min_x + q * (max_x - min_x) / (2^b - 1)
+    index_type      "u8" (n <= 256), "u16" (n <= 65536) or "u32"
+    indices         bin: 3m little-endian values, 0-based, counter-clockwise triangles
+    attributes      (optional) map name -> {"components": k, "type": "f32", "data": bin
+                    of n*k little-endian float32}; names "normal", "color", "uv"
+    texture         (optional) bin, the image bytes; texture_type its media type
+    name            (optional) the mesh's name
+
+Quantised positions are within half a grid step, (max - min) / (2^b - 1) / 2 per axis,
+of the input; float32 positions are the input rounded to float32.
+"""
+
+from __future__ import annotations
+
+import math
+
+import msgpack
+import numpy as np
+
+from ..errors import InvalidOptionsError, MeshFormatError
+from ..mesh import Mesh
+from ._images import image_media_type
+
+__all__ = ["read_msgpack", "write_msgpack", "is_msgpack_mesh", "FORMAT_NAME", "VERSION"]
+
+FORMAT_NAME = "qem-mesh-msgpack"
+VERSION = 1
+_INDEX_TYPES = {"u8": np.dtype("u1"), "u16": np.dtype("<u2"), "u32": np.dtype("<u4")}
+_ATTRIBUTE_WIDTHS = {"normal": (3,), "color": (3, 4), "uv": (2,)}
+
+
+def is_msgpack_mesh(data: bytes) -> bool:
+    """True if the data starts with a msgpack map that names this format early on."""
+    is_map = data[:1] in (b"\xde", b"\xdf") or (bool(data) and 0x80 <= data[0] <= 0x8F)
+    return is_map and FORMAT_NAME.encode() in data[:64]
+
+
+def write_msgpack(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    vertex_attributes: dict[str, np.ndarray],
+    texture: bytes | None = None,
+    *,
+    quantize_bits: int | None = None,
+    name: str | None = None,
+) -> bytes:
+    """Encode in the msgpack form; `quantize_bits` None gives float32 positions, 1..16
+    gives uint16 grid positions of that many bits."""
+    n_vertices = vertices.shape[0]
+    low = vertices.min(axis=0) if n_vertices else np.zeros(3)
+    high = vertices.max(axis=0) if n_vertices else np.zeros(3)
+    message: dict = {
+        "format": FORMAT_NAME,
+        "version": VERSION,
+        "vertex_count": n_vertices,
+        "face_count": int(faces.shape[0]),
+        "bbox": [float(x) for x in (*low, *high)],
+    }
+    if quantize_bits is None:
+        message["position_encoding"] = "f32"
+        message["positions"] = vertices.astype("<f4").tobytes()
+    else:
+        if isinstance(quantize_bits, bool) or quantize_bits not in range(1, 17):
+            raise InvalidOptionsError(
+                f"quantize_bits={quantize_bits!r}: use None (float32) or 1..16 (16 is usual)"
+            )
+        steps = (1 << quantize_bits) - 1
+        extent = high - low
+        scale = np.divide(steps, extent, out=np.zeros(3), where=extent > 0)
+        grid = np.clip(np.round((vertices - low) * scale), 0, steps)
+        message["position_encoding"] = "u16"
+        message["position_bits"] = quantize_bits
+        message["positions"] = grid.astype("<u2").tobytes()
+    index_type = _index_type(n_vertices)
+    message["index_type"] = index_type
+    message["indices"] = faces.astype(_INDEX_TYPES[index_type]).tobytes()
+    if vertex_attributes:
+        message["attributes"] = {
+            key: {
+                "components": int(values.shape[1]),
+                "type": "f32",
+                "data": values.astype("<f4").tobytes(),
+            }
+            for key, values in sorted(vertex_attributes.items())
+        }
+    if texture is not None:
+        message["texture"] = bytes(texture)
+        message["texture_type"] = image_media_type(texture) or "application/octet-stream"
+    if name is not None:
+        message["name"] = str(name)
+    return msgpack.packb(message, use_bin_type=True)
+
+
+def read_msgpack(data: bytes) -> Mesh:
+    """Decode the msgpack form. Raises MeshFormatError naming the bad field."""
+    try:
+        message = msgpack.unpackb(data, raw=False, strict_map_key=True)
+    except (ValueError, TypeError, msgpack.UnpackException) as error:
+        raise MeshFormatError(f"not a valid msgpack message: {error}") from None
+    if not isinstance(message, dict) or message.get("format") != FORMAT_NAME:
+        raise MeshFormatError(f"msgpack message is not a {FORMAT_NAME!r} map")
+    version = message.get("version")
+    if version != VERSION:
+        raise MeshFormatError(
+            f"{FORMAT_NAME} version {version!r} is not supported (this reader reads "
+            f"version {VERSION}); upgrade qem-lod to read newer files"
+        )
+    n_vertices = _count(message, "vertex_count")
+    n_faces = _count(message, "face_count")
+    bbox = message.get("bbox")
+    if (
+        not isinstance(bbox, list)
+        or len(bbox) != 6
+        or not all(isinstance(x, int | float) and math.isfinite(x) for x in bbox)
+    ):
+        raise MeshFormatError("'bbox' must be 6 finite numbers: min x y z, max x y z")
+    encoding = message.get("position_encoding")
+    if encoding == "f32":
+        vertices = _array(message, "positions", "<f4", n_vertices * 3).astype(np.float64)
+    elif encoding == "u16":
+        bits = message.get("position_bits")
+        if isinstance(bits, bool) or bits not in range(1, 17):
+            raise MeshFormatError(f"'position_bits' must be 1..16, got {bits!r}")
+        grid = _array(message, "positions", "<u2", n_vertices * 3).reshape(-1, 3)
+        low, high = np.array(bbox[:3]), np.array(bbox[3:])
+        vertices = low + grid * ((high - low) / ((1 << bits) - 1))
+    else:
+        raise MeshFormatError(f"'position_encoding' must be 'f32' or 'u16', got {encoding!r}")
+    index_type = message.get("index_type")
+    if index_type not in _INDEX_TYPES:
+        raise MeshFormatError(f"'index_type' must be one of {list(_INDEX_TYPES)}")
+    faces = _array(message, "indices", _INDEX_TYPES[index_type], n_faces * 3).astype(np.int64)
+    attributes = {}
+    for key, entry in (message.get("attributes") or {}).items():
+        if key not in _ATTRIBUTE_WIDTHS or not isinstance(entry, dict):
+            raise MeshFormatError(f"unknown attribute {key!r}; known: {sorted(_ATTRIBUTE_WIDTHS)}")
+        width = entry.get("components")
+        if width not in _ATTRIBUTE_WIDTHS[key] or entry.get("type") != "f32":
+            raise MeshFormatError(
+                f"attribute {key!r} must be f32 with {_ATTRIBUTE_WIDTHS[key]} components"
+            )
+        attributes[key] = _array(entry, "data", "<f4", n_vertices * width).reshape(-1, width)
+    texture = message.get("texture")
+    if texture is not None and not isinstance(texture, bytes):
+        raise MeshFormatError("'texture' must be bin (the image bytes)")
+    name = message.get("name")
+    return Mesh(
+        vertices=vertices.reshape(-1, 3),
+        faces=faces.reshape(-1, 3),
+        vertex_attributes={k: v.astype(np.float32) for k, v in attributes.items()},
+        texture=texture,
+        name=name if isinstance(name, str) else None,
+    )
+
+
+def _index_type(n_vertices: int) -> str:
+    if n_vertices <= 1 << 8:
+        return "u8"
+    if n_vertices <= 1 << 16:
+        return "u16"
+    return "u32"
+
+
+def _count(message: dict, key: str) -> int:
+    value = message.get(key)
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise MeshFormatError(f"{key!r} must be a non-negative integer, got {value!r}")
+    return value
+
+
+def _array(message: dict, key: str, dtype: str | np.dtype, n_values: int) -> np.ndarray:
+    """A bin field as n_values of dtype; its length must match exactly."""
+    data = message.get(key)
+    if not isinstance(data, bytes):
+        raise MeshFormatError(f"{key!r} must be bin (raw bytes)")
+    dtype = np.dtype(dtype)
+    if len(data) != n_values * dtype.itemsize:
+        raise MeshFormatError(
+            f"{key!r} holds {len(data)} bytes, but the counts need {n_values} values of "
+            f"{dtype.itemsize} bytes ({n_values * dtype.itemsize}): the message is damaged"
+        )
+    return np.frombuffer(data, dtype=dtype)

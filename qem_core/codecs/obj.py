@@ -1,0 +1,216 @@
+"""Wavefront OBJ: reader and writer (geometry only).
+
+Reads ``v x y z`` (a 6-number ``v x y z r g b`` on every line gives "color"), ``vt u v``,
+``vn x y z`` and ``f`` lines with corners ``v``, ``v/vt``, ``v//vn`` or ``v/vt/vn``,
+1-based or negative (relative to the lines read so far); polygons are fan-triangulated.
+Texture coordinates go to `Mesh.corner_uvs` (one per face corner, as OBJ stores them);
+when every vertex has a single UV (no seams) they are also the "uv" vertex attribute,
+and the same rule turns ``vn`` into the "normal" attribute. Everything else (``mtllib``,
+``usemtl``, ``o``, ``g``, ``s``, ``l``, ``p``, comments) is ignored.
+
+Lines are found with one regular expression and their numbers parsed by numpy in bulk;
+a Python loop touches each line once, to sort it by keyword.
+
+Writes ``v`` (with ``r g b`` when colours are given), ``vt`` and ``vn`` (one per vertex,
+when given) and ``f a/a/a b/b/b c/c/c`` lines; values are float32 written with 9
+significant digits, so they read back exactly.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from ..errors import MeshFormatError
+from ..mesh import Mesh
+from ._polygons import fan_corners
+from ._text import count_tokens, parse_lines, parse_numbers
+
+__all__ = ["read_obj", "write_obj"]
+
+_LINE = re.compile(rb"^[ \t]*(v|vt|vn|f)[ \t]+([^\r\n#]*)", re.MULTILINE)
+_SPACE = np.zeros(256, dtype=bool)
+_SPACE[list(b" \t\n\r\x0b\x0c")] = True
+_SLASH = ord("/")
+
+
+def read_obj(data: bytes) -> Mesh:
+    """Decode an OBJ file into a Mesh. Raises MeshFormatError."""
+    data = data.replace(b"\\\r\n", b" ").replace(b"\\\n", b" ")  # line continuations
+    matches = _LINE.findall(data)
+    lines: dict[bytes, list[bytes]] = {b"v": [], b"vt": [], b"vn": [], b"f": []}
+    for keyword, body in matches:
+        lines[keyword].append(body)
+    if not lines[b"v"] and not lines[b"f"]:
+        raise MeshFormatError("not an OBJ file: no 'v' or 'f' lines")
+    positions = _table(lines[b"v"], 3, "OBJ 'v' line")
+    uv_table = _table(lines[b"vt"], 2, "OBJ 'vt' line")[:, :2]
+    normal_table = _table(lines[b"vn"], 3, "OBJ 'vn' line")[:, :3]
+
+    corner_counts = count_tokens(lines[b"f"])
+    v_index, vt_index, vn_index = _corner_indices(b" ".join(lines[b"f"]), corner_counts)
+    counters = _Counters(matches, corner_counts)
+    v_index = counters.resolve(v_index, b"v", positions.shape[0])
+    triangles = fan_corners(corner_counts, "OBJ 'f' line")
+    faces = v_index[triangles]
+
+    attributes = {}
+    if positions.shape[1] == 6:
+        attributes["color"] = np.clip(positions[:, 3:6], 0.0, 1.0)
+    corner_uvs = None
+    if vt_index.size and np.all(vt_index != 0):
+        vt_index = counters.resolve(vt_index, b"vt", uv_table.shape[0])
+        corner_uvs = uv_table[vt_index[triangles]].astype(np.float32)
+        uv = _per_vertex(faces, corner_uvs, positions.shape[0])
+        if uv is not None:
+            attributes["uv"] = uv
+    if vn_index.size and np.all(vn_index != 0):
+        vn_index = counters.resolve(vn_index, b"vn", normal_table.shape[0])
+        normal = _per_vertex(faces, normal_table[vn_index[triangles]], positions.shape[0])
+        if normal is not None:
+            attributes["normal"] = normal
+    return Mesh(
+        vertices=np.ascontiguousarray(positions[:, :3]),
+        faces=faces,
+        vertex_attributes={k: v.astype(np.float32) for k, v in attributes.items()},
+        corner_uvs=corner_uvs,
+    )
+
+
+def write_obj(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    vertex_attributes: dict[str, np.ndarray],
+    texture: bytes | None = None,
+) -> bytes:
+    """Encode as OBJ text. The texture, if any, is not stored (OBJ keeps images in
+    separate files named by an .mtl file)."""
+    color = vertex_attributes.get("color")
+    uv = vertex_attributes.get("uv")
+    normal = vertex_attributes.get("normal")
+    columns = [vertices]
+    if color is not None:
+        columns.append(color[:, :3])
+    parts = [b"# qem-lod\n", _format_rows("v", np.hstack(columns))]
+    if uv is not None:
+        parts.append(_format_rows("vt", uv))
+    if normal is not None:
+        parts.append(_format_rows("vn", normal))
+    one_based = faces.astype(np.int64) + 1
+    slots = 1 + (uv is not None or normal is not None) + (normal is not None)
+    corners = np.repeat(one_based[:, :, None], slots, axis=2)
+    corner_format = {1: "%d", 2: "%d/%d", 3: "%d/%d/%d"}[slots]
+    if uv is None and normal is not None:
+        corner_format = "%d//%d"
+    line = "f " + " ".join([corner_format] * 3) + "\n"
+    parts.append(((line * faces.shape[0]) % tuple(corners.ravel().tolist())).encode("ascii"))
+    return b"".join(parts)
+
+
+def _format_rows(keyword: str, values: np.ndarray) -> bytes:
+    """Lines ``keyword a b c`` with float32 values, 9 significant digits (exact)."""
+    values = values.astype(np.float32).astype(np.float64)
+    line = keyword + " %.9g" * values.shape[1] + "\n"
+    return ((line * values.shape[0]) % tuple(values.ravel().tolist())).encode("ascii")
+
+
+def _table(lines: list[bytes], width: int, what: str) -> np.ndarray:
+    """(n, w) numbers of lines with at least `width` numbers each: w is their common
+    count when all lines have the same, else `width` (extra numbers dropped)."""
+    numbers, counts = parse_lines(lines, f"{what}s")
+    if not lines:
+        return np.zeros((0, width), dtype=np.float64)
+    if counts.min() < width:
+        bad = int(np.flatnonzero(counts < width)[0])
+        raise MeshFormatError(
+            f"{what} {bad + 1} of its kind has {int(counts[bad])} numbers; it needs {width}"
+        )
+    if counts.min() == counts.max():
+        return numbers.reshape(len(lines), int(counts[0]))
+    first = np.cumsum(counts) - counts
+    return numbers[first[:, None] + np.arange(width)]
+
+
+def _corner_indices(text: bytes, corner_counts: np.ndarray) -> tuple[np.ndarray, ...]:
+    """(v, vt, vn) indices of every face corner as written (0 where absent).
+
+    `text` holds the corners (``7``, ``7/3``, ``7//2``, ``7/3/2``) separated by spaces.
+    Writing ``//`` as ``/0/`` gives every corner one number more than its slashes; the
+    slashes of each corner are counted with numpy on the bytes.
+    """
+    text = text.replace(b"//", b"/0/")
+    chars = np.frombuffer(text, dtype=np.uint8)
+    space = _SPACE[chars]
+    starts = ~space
+    starts[1:] &= space[:-1]
+    n_corners = int(corner_counts.sum())
+    if int(np.count_nonzero(starts)) != n_corners:
+        raise MeshFormatError("OBJ 'f' lines hold characters that are not corners")
+    corner_of_char = np.cumsum(starts) - 1
+    slashes = np.bincount(corner_of_char[chars == _SLASH], minlength=n_corners)
+    numbers = parse_numbers(text.replace(b"/", b" "), np.int64, "OBJ 'f' lines")
+    per_corner = slashes + 1
+    if n_corners and (slashes.max() > 2 or numbers.size != per_corner.sum()):
+        raise MeshFormatError(
+            "OBJ 'f' line has a malformed corner; corners are v, v/vt, v//vn or v/vt/vn"
+        )
+    first = np.cumsum(per_corner) - per_corner
+    last = max(numbers.size - 1, 0)
+    v_index = numbers[first] if n_corners else numbers
+    vt_index = np.where(slashes >= 1, numbers[np.minimum(first + 1, last)], 0)
+    vn_index = np.where(slashes == 2, numbers[np.minimum(first + 2, last)], 0)
+    return v_index, vt_index, vn_index
+
+
+class _Counters:
+    """Turns OBJ indices (1-based, or negative: -1 is the last line of its kind read
+    before the face) into 0-based indices, checking their range."""
+
+    def __init__(self, matches: list[tuple[bytes, bytes]], corner_counts: np.ndarray):
+        self._matches = matches
+        self._corner_counts = corner_counts
+        self._keywords: np.ndarray | None = None
+
+    def resolve(self, index: np.ndarray, keyword: bytes, n_defined: int) -> np.ndarray:
+        name = keyword.decode()
+        if index.size and index.min() == 0:
+            face = self._face_of_corner(int(np.flatnonzero(index == 0)[0]))
+            raise MeshFormatError(
+                f"OBJ 'f' line {face + 1} has {name} index 0; OBJ indices start at 1 "
+                "(or count back from -1)"
+            )
+        resolved = index - 1
+        negative = index < 0
+        if negative.any():
+            resolved[negative] = index[negative] + self._defined_before(keyword)[negative]
+        bad = (resolved < 0) | (resolved >= n_defined)
+        if bad.any():
+            corner = int(np.flatnonzero(bad)[0])
+            raise MeshFormatError(
+                f"OBJ 'f' line {self._face_of_corner(corner) + 1} refers to {name} "
+                f"{int(index[corner])}, but the file has {n_defined} '{name}' lines; "
+                "fix the face or add the missing lines"
+            )
+        return resolved
+
+    def _defined_before(self, keyword: bytes) -> np.ndarray:
+        """For each corner, the number of `keyword` lines before its 'f' line."""
+        if self._keywords is None:
+            self._keywords = np.array([k for k, _ in self._matches])
+        defined = np.cumsum(self._keywords == keyword)
+        return np.repeat(defined[self._keywords == b"f"], self._corner_counts)
+
+    def _face_of_corner(self, corner: int) -> int:
+        return int(np.searchsorted(np.cumsum(self._corner_counts), corner, side="right"))
+
+
+def _per_vertex(faces: np.ndarray, corner_values: np.ndarray, n_vertices: int) -> np.ndarray | None:
+    """(n, k) values per vertex if every corner of a vertex carries the same value, else
+    None (a seam). Vertices no face uses get zeros."""
+    flat_values = corner_values.reshape(faces.size, -1)
+    per_vertex = np.zeros((n_vertices, flat_values.shape[1]), dtype=flat_values.dtype)
+    per_vertex[faces.ravel()] = flat_values
+    if np.array_equal(per_vertex[faces.ravel()], flat_values):
+        return per_vertex
+    return None

@@ -1,0 +1,242 @@
+"""The format registry and the two entry points, `load_mesh` and `encode_mesh`.
+
+Each format lives in its own module; this one only knows which function reads or writes
+which format (the `_READERS` and `_WRITERS` dicts, like trimesh's `_ply_loaders`), how
+to recognise a format from a file name or from the bytes themselves, and the checks
+every loaded mesh goes through.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from typing import BinaryIO
+
+import numpy as np
+
+from ..errors import InvalidMeshError, InvalidOptionsError, MeshFormatError
+from ..mesh import Mesh
+from ..prepare import validate_mesh_arrays
+from .glb import is_glb, read_glb, write_glb
+from .msgpack_mesh import is_msgpack_mesh, read_msgpack, write_msgpack
+from .obj import read_obj, write_obj
+from .off import is_off, read_off
+from .ply import read_ply, write_ply
+from .stl import is_ascii_stl, is_binary_stl, read_stl
+
+__all__ = ["MEDIA_TYPES", "load_mesh", "encode_mesh", "decode_msgpack_mesh"]
+
+_READERS: dict[str, Callable[[bytes], Mesh]] = {
+    "ply": read_ply,
+    "obj": read_obj,
+    "stl": read_stl,
+    "off": read_off,
+    "glb": read_glb,
+    "msgpack": read_msgpack,
+}
+_WRITERS: dict[str, Callable[..., bytes]] = {
+    "ply": write_ply,
+    "obj": write_obj,
+    "glb": write_glb,
+    "msgpack": write_msgpack,
+}
+# Content types for HTTP. PLY and OFF have no registered type: the x- names are the
+# customary ones.
+MEDIA_TYPES: dict[str, str] = {
+    "ply": "model/x-ply",
+    "obj": "model/obj",
+    "stl": "model/stl",
+    "off": "model/x-off",
+    "glb": "model/gltf-binary",
+    "msgpack": "application/vnd.msgpack",
+}
+_EXTENSIONS = {f".{name}": name for name in _READERS} | {".mpk": "msgpack"}
+_ATTRIBUTE_WIDTHS = {"normal": (3,), "color": (3, 4), "uv": (2,)}
+
+MeshSource = str | os.PathLike | bytes | bytearray | memoryview | BinaryIO
+
+
+def load_mesh(source: MeshSource, format: str | None = None, name: str | None = None) -> Mesh:
+    """Read and validate a triangle mesh.
+
+    source : a file path, the file's bytes, or a binary file object.
+    format : "ply", "obj", "stl", "off", "glb" or "msgpack"; None infers it from the
+        name's extension, else from the content (PLY "ply" line, GLB "glTF" magic, OFF
+        keyword, binary STL size, ASCII STL "solid", the msgpack form's header, else OBJ
+        if it has 'v' and 'f' lines).
+    name : the file name, for format inference and messages; defaults to the path's or
+        the file object's name.
+
+    Returns a Mesh with float64 (n, 3) vertices, int32 (m, 3) faces (polygons
+    fan-triangulated), the attributes the file has, and `name`.
+
+    Raises MeshFormatError for an unknown format or a malformed, truncated file;
+    InvalidMeshError for unusable content (no vertices or faces, NaN or infinite
+    coordinates, face indices out of range). Messages name the bad value. Nothing is
+    allocated in proportion to counts a header declares before they are checked
+    against the file's size. OSError if a path cannot be read.
+    """
+    data, source_name = _read_source(source)
+    name = name if name is not None else source_name
+    label = name or "mesh data"
+    fmt = _resolve_format(format, name, data)
+    try:
+        mesh = _READERS[fmt](data)
+    except InvalidMeshError as error:
+        raise type(error)(f"{label}: {error}") from None
+    except (ValueError, IndexError, OverflowError) as error:
+        # A reader missed a check: still the caller's bad file, not a crash.
+        raise MeshFormatError(f"{label}: could not read as {fmt} ({error})") from error
+    vertices, faces = validate_mesh_arrays(mesh.vertices, mesh.faces, what=label)
+    attributes = _checked_attributes(mesh.vertex_attributes, vertices.shape[0], label)
+    corner_uvs = mesh.corner_uvs
+    if corner_uvs is not None and not np.isfinite(corner_uvs).all():
+        raise InvalidMeshError(f"{label}: texture coordinates hold NaN or infinite values")
+    return Mesh(
+        vertices=vertices,
+        faces=faces,
+        vertex_attributes=attributes,
+        corner_uvs=corner_uvs,
+        texture=mesh.texture,
+        name=name if name is not None else mesh.name,
+    )
+
+
+def decode_msgpack_mesh(data: bytes) -> Mesh:
+    """Decode and validate the compact msgpack form (docs/formats.md)."""
+    return load_mesh(data, format="msgpack")
+
+
+def encode_mesh(
+    vertices: object,
+    faces: object,
+    format: str,
+    vertex_attributes: dict[str, object] | None = None,
+    texture: bytes | None = None,
+    *,
+    quantize_bits: int | None = None,
+    name: str | None = None,
+) -> bytes:
+    """Encode a triangle mesh as "ply", "obj", "glb" or "msgpack" bytes.
+
+    vertices : (n, 3) float; faces : (m, 3) int in [0, n).
+    vertex_attributes : optional "normal" (n, 3), "color" (n, 3 or 4) in [0, 1],
+        "uv" (n, 2) with the origin at the bottom-left of the image.
+    texture : optional PNG or JPEG bytes; stored by "glb" (with UVs) and "msgpack".
+    quantize_bits : "msgpack" only: None stores float32 positions, 16 (or 1..15) stores
+        uint16 positions on a grid of that many bits over the bounding box.
+    name : "msgpack" only: stored in the message.
+
+    Raises InvalidOptionsError for an unknown format or an option the format does not
+    take, InvalidMeshError for bad arrays. docs/formats.md has each format's layout.
+    """
+    fmt = str(format).lower().lstrip(".")
+    if fmt not in _WRITERS:
+        raise InvalidOptionsError(
+            f"cannot write format {format!r}; formats written are {sorted(_WRITERS)}"
+        )
+    vertices, faces = validate_mesh_arrays(vertices, faces)
+    attributes = _checked_attributes(vertex_attributes or {}, vertices.shape[0], "mesh")
+    if texture is not None and not isinstance(texture, bytes | bytearray):
+        raise InvalidMeshError("texture must be the bytes of a PNG or JPEG image")
+    if fmt == "msgpack":
+        return write_msgpack(
+            vertices, faces, attributes, texture, quantize_bits=quantize_bits, name=name
+        )
+    if quantize_bits is not None:
+        raise InvalidOptionsError(f"quantize_bits applies to 'msgpack' only, not {fmt!r}")
+    return _WRITERS[fmt](vertices, faces, attributes, texture)
+
+
+def _read_source(source: MeshSource) -> tuple[bytes, str | None]:
+    """The bytes of a path, bytes-like object or binary file object, and its name."""
+    if isinstance(source, bytes | bytearray | memoryview):
+        return bytes(source), None
+    if isinstance(source, str | os.PathLike):
+        with open(source, "rb") as file:
+            return file.read(), os.path.basename(os.fspath(source))
+    if hasattr(source, "read"):
+        data = source.read()
+        if not isinstance(data, bytes | bytearray):
+            raise MeshFormatError("the file object must be opened in binary mode ('rb')")
+        file_name = getattr(source, "name", None)
+        return bytes(data), os.path.basename(file_name) if isinstance(file_name, str) else None
+    raise MeshFormatError(
+        f"cannot read a mesh from {type(source).__name__}; give a path, bytes or a binary file"
+    )
+
+
+def _resolve_format(format: str | None, name: str | None, data: bytes) -> str:
+    supported = ", ".join(sorted(_READERS))
+    if format is not None:
+        fmt = str(format).lower().lstrip(".")
+        if fmt not in _READERS:
+            raise MeshFormatError(f"unknown mesh format {format!r}; supported: {supported}")
+        return fmt
+    extension = os.path.splitext(name or "")[1].lower()
+    if extension in _EXTENSIONS:
+        return _EXTENSIONS[extension]
+    sniffed = _sniff(data)
+    if sniffed is None:
+        what = f"{name!r}" if name else "the data"
+        raise MeshFormatError(
+            f"cannot tell the mesh format of {what} from its name or content; "
+            f"supported formats: {supported} (name the file with one of these extensions "
+            "or pass format=)"
+        )
+    return sniffed
+
+
+def _sniff(data: bytes) -> str | None:
+    """The format the content looks like, or None."""
+    if data[:3] == b"ply" and data[3:4] in (b"\n", b"\r"):
+        return "ply"
+    if is_glb(data):
+        return "glb"
+    if is_msgpack_mesh(data):
+        return "msgpack"
+    if is_off(data):
+        return "off"
+    if is_binary_stl(data):
+        return "stl"
+    if is_ascii_stl(data):
+        return "stl"
+    head = data[:65536]
+    if b"\0" not in head and _looks_like_obj(head):
+        return "obj"
+    return None
+
+
+def _looks_like_obj(head: bytes) -> bool:
+    words = {line.split(None, 1)[0] for line in head.splitlines() if line.strip()}
+    return b"v" in words and (b"f" in words or len(head) == 65536)
+
+
+def _checked_attributes(
+    attributes: dict[str, object], n_vertices: int, label: str
+) -> dict[str, np.ndarray]:
+    """Known attributes as C-contiguous (n, k) float32, finite, of the right width."""
+    checked = {}
+    for key, values in attributes.items():
+        if key not in _ATTRIBUTE_WIDTHS:
+            raise InvalidMeshError(
+                f"{label}: unknown vertex attribute {key!r}; known: {sorted(_ATTRIBUTE_WIDTHS)}"
+            )
+        values = np.asarray(values)
+        widths = _ATTRIBUTE_WIDTHS[key]
+        if values.ndim != 2 or values.shape[0] != n_vertices or values.shape[1] not in widths:
+            raise InvalidMeshError(
+                f"{label}: vertex attribute {key!r} must have shape ({n_vertices}, "
+                f"{' or '.join(map(str, widths))}), got {values.shape}"
+            )
+        if values.dtype.kind not in "fiu":
+            raise InvalidMeshError(f"{label}: vertex attribute {key!r} must hold numbers")
+        values = np.ascontiguousarray(values, dtype=np.float32)
+        if not np.isfinite(values).all():
+            row = int(np.flatnonzero(~np.isfinite(values).all(axis=1))[0])
+            raise InvalidMeshError(
+                f"{label}: vertex attribute {key!r} of vertex {row} is {values[row].tolist()}; "
+                "NaN and infinite values are refused: repair or drop the attribute"
+            )
+        checked[key] = values
+    return checked

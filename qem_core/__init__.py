@@ -1,8 +1,13 @@
 """qem_core: quadric-error edge contraction recorded as a progressive mesh.
 
+    pm = qem_core.build(vertices, faces)        # simplify once, record every contraction
+    vertices, faces = pm.lod(10_000)            # any level, exactly that many vertices
+    pm.save("bunny.qpm"); pm = qem_core.load("bunny.qpm")
+
 The public surface is small; everything else is private to the package.
 """
 
+from .codecs import encode_mesh, load_mesh
 from .errors import (
     CorruptFileError,
     InvalidMeshError,
@@ -12,6 +17,18 @@ from .errors import (
 )
 from .mesh import Mesh
 from .options import BuildOptions
+from .progressive import ProgressiveMesh, VertexSplits, apply_splits
+from .qpm import load
+from .simplify import build
+
+
+def build_mesh(mesh: Mesh, options=None, progress=None) -> ProgressiveMesh:
+    """`build` for a loaded `Mesh` (its name is kept in the metadata)."""
+    pm = build(mesh.vertices, mesh.faces, options=options, progress=progress)
+    if mesh.name:
+        pm.metadata["name"] = mesh.name
+    return pm
+
 
 __all__ = [
     "BuildOptions",
@@ -20,5 +37,13 @@ __all__ = [
     "InvalidOptionsError",
     "Mesh",
     "MeshFormatError",
+    "ProgressiveMesh",
     "QemError",
+    "VertexSplits",
+    "apply_splits",
+    "build",
+    "build_mesh",
+    "encode_mesh",
+    "load",
+    "load_mesh",
 ]

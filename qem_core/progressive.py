@@ -14,6 +14,7 @@ rerun of the simplification.
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import numpy as np
@@ -78,6 +79,14 @@ class ProgressiveMesh:
         # maximum of the split costs, so it never decreases as n falls.
         suffix = np.maximum.accumulate(split_cost[::-1])[::-1] if split_cost.size else split_cost
         self._level_error = np.append(suffix, 0.0)
+
+    @functools.cached_property
+    def position_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(low, high) corners of the box of every position any level uses (a coarse
+        level's optimal positions may leave the input's box)."""
+        points = [self.base_vertices.reshape(-1, 3), self.split_positions.reshape(-1, 3)]
+        everything = np.concatenate(points)
+        return everything.min(axis=0), everything.max(axis=0)
 
     # -- sizes ---------------------------------------------------------------------
     @property

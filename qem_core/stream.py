@@ -19,7 +19,6 @@ from __future__ import annotations
 import struct
 import zlib
 from collections.abc import Iterable, Iterator
-from typing import NamedTuple
 
 import msgpack
 import numpy as np
@@ -27,6 +26,7 @@ import numpy as np
 from ._kernels.refine import delta_code_positions, undo_delta_positions
 from .errors import CorruptFileError, InvalidOptionsError
 from .progressive import ProgressiveMesh, VertexSplits, apply_splits, check_splits
+from .quantise import Grid
 
 __all__ = [
     "MEDIA_TYPE",
@@ -40,6 +40,9 @@ __all__ = [
 
 MEDIA_TYPE = "application/x-qem-splits"
 STREAM_VERSION = 1
+# Frames grow from FIRST_FRAME_SPLITS to SPLITS_PER_FRAME splits (doubling), so that a
+# viewer refines early in the stream and big ranges still deflate well.
+FIRST_FRAME_SPLITS = 512
 SPLITS_PER_FRAME = 8192
 # Face codes: 0-2 the face is (s, t, x) rotated by the code; 3-5 (t, s, x) rotated;
 # 6 the three corners are given explicitly (non-manifold or pair-contraction splits).
@@ -47,31 +50,11 @@ _EXPLICIT_FACE = 6
 _FRAME_LIMIT = 64 << 20
 
 
-class Grid(NamedTuple):
-    """Quantisation grid: p = origin + q * step, q in [0, 2^bits - 1]."""
-
-    origin: np.ndarray  # (3,) float64
-    step: np.ndarray  # (3,) float64
-    bits: int
-
-    def quantise(self, positions: np.ndarray) -> np.ndarray:
-        top = (1 << self.bits) - 1
-        q = np.rint((np.asarray(positions, np.float64) - self.origin) / self.step)
-        return np.clip(q, 0, top).astype(np.int64)
-
-    def dequantise(self, q: np.ndarray) -> np.ndarray:
-        return self.origin + np.asarray(q, np.float64) * self.step
-
-
 def grid_for(pm: ProgressiveMesh, bits: int = 16) -> Grid:
     """The grid over every position ``pm`` uses (coarse levels may leave the input box)."""
     if not isinstance(bits, int) or not 8 <= bits <= 24:
         raise InvalidOptionsError(f"bits={bits!r} must be an integer in [8, 24]")
-    points = [pm.base_vertices.reshape(-1, 3), pm.split_positions.reshape(-1, 3)]
-    everything = np.concatenate(points)
-    lo, hi = everything.min(axis=0), everything.max(axis=0)
-    extent = np.where(hi > lo, hi - lo, 1.0)
-    return Grid(lo, extent / ((1 << bits) - 1), bits)
+    return Grid.over_box(*pm.position_bounds, bits)
 
 
 def _planes(values: np.ndarray, dtype: str) -> bytes:
@@ -164,14 +147,18 @@ def encode_split_frames(
         raise InvalidOptionsError(f"from={n_from} must not exceed to={n_to}")
     quantised = np.zeros((n_to, 3), np.int64)
     quantised[:n_from] = grid.quantise(pm.lod(n_from)[0])
-    for start in range(n_from, n_to, splits_per_frame):
-        stop = min(start + splits_per_frame, n_to)
+    frame_splits = min(FIRST_FRAME_SPLITS, splits_per_frame)
+    start = n_from
+    while start < n_to:
+        stop = min(start + frame_splits, n_to)
+        frame_splits = min(2 * frame_splits, splits_per_frame)
         splits = pm.splits(start, stop)
         deltas = np.zeros((stop - start, 2, 3), np.int64)
         delta_code_positions(
             quantised, splits.split_vertex, grid.quantise(splits.split_positions), start, deltas
         )
         yield _encode_frame(splits, deltas, grid)
+        start = stop
 
 
 def iter_frames(chunks: Iterable[bytes]) -> Iterator[bytes]:

@@ -7,7 +7,9 @@ decodes from):
     version         1
     vertex_count    n
     face_count      m
-    bbox            [min_x, min_y, min_z, max_x, max_y, max_z] (float64) of the positions
+    bbox            [min_x, min_y, min_z, max_x, max_y, max_z] (float64): the box of the
+                    positions, or with "u16" the box of the grid (which holds them; a
+                    served level uses the grid of its split stream)
     position_encoding  "f32" or "u16"
     position_bits   b, 1..16 (only with "u16")
     positions       bin: 3n little-endian values, x y z per vertex; "u16" values q are
@@ -32,6 +34,7 @@ import numpy as np
 
 from ..errors import InvalidOptionsError, MeshFormatError
 from ..mesh import Mesh
+from ..quantise import Grid
 from ._images import image_media_type
 
 __all__ = ["read_msgpack", "write_msgpack", "is_msgpack_mesh", "FORMAT_NAME", "VERSION"]
@@ -55,13 +58,20 @@ def write_msgpack(
     texture: bytes | None = None,
     *,
     quantize_bits: int | None = None,
+    grid_box: tuple[np.ndarray, np.ndarray] | None = None,
     name: str | None = None,
 ) -> bytes:
     """Encode in the msgpack form; `quantize_bits` None gives float32 positions, 1..16
-    gives uint16 grid positions of that many bits."""
+    gives uint16 grid positions of that many bits, over `grid_box` (low, high) when
+    given (it must hold every vertex), else over the vertices' bounding box."""
     n_vertices = vertices.shape[0]
-    low = vertices.min(axis=0) if n_vertices else np.zeros(3)
-    high = vertices.max(axis=0) if n_vertices else np.zeros(3)
+    if grid_box is not None:
+        low, high = (np.asarray(corner, np.float64).reshape(3) for corner in grid_box)
+        if n_vertices and (np.any(vertices < low) or np.any(vertices > high)):
+            raise InvalidOptionsError("grid_box must contain every vertex")
+    else:
+        low = vertices.min(axis=0) if n_vertices else np.zeros(3)
+        high = vertices.max(axis=0) if n_vertices else np.zeros(3)
     message: dict = {
         "format": FORMAT_NAME,
         "version": VERSION,
@@ -77,13 +87,10 @@ def write_msgpack(
             raise InvalidOptionsError(
                 f"quantize_bits={quantize_bits!r}: use None (float32) or 1..16 (16 is usual)"
             )
-        steps = (1 << quantize_bits) - 1
-        extent = high - low
-        scale = np.divide(steps, extent, out=np.zeros(3), where=extent > 0)
-        grid = np.clip(np.round((vertices - low) * scale), 0, steps)
+        grid = Grid.over_box(low, high, quantize_bits)
         message["position_encoding"] = "u16"
         message["position_bits"] = quantize_bits
-        message["positions"] = grid.astype("<u2").tobytes()
+        message["positions"] = grid.quantise(vertices).astype("<u2").tobytes()
     index_type = _index_type(n_vertices)
     message["index_type"] = index_type
     message["indices"] = faces.astype(_INDEX_TYPES[index_type]).tobytes()
@@ -134,9 +141,8 @@ def read_msgpack(data: bytes) -> Mesh:
         bits = message.get("position_bits")
         if isinstance(bits, bool) or bits not in range(1, 17):
             raise MeshFormatError(f"'position_bits' must be 1..16, got {bits!r}")
-        grid = _array(message, "positions", "<u2", n_vertices * 3).reshape(-1, 3)
-        low, high = np.array(bbox[:3]), np.array(bbox[3:])
-        vertices = low + grid * ((high - low) / ((1 << bits) - 1))
+        quantised = _array(message, "positions", "<u2", n_vertices * 3).reshape(-1, 3)
+        vertices = Grid.over_box(bbox[:3], bbox[3:], bits).dequantise(quantised)
     else:
         raise MeshFormatError(f"'position_encoding' must be 'f32' or 'u16', got {encoding!r}")
     index_type = message.get("index_type")

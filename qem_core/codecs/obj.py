@@ -62,12 +62,12 @@ def read_obj(data: bytes) -> Mesh:
     if vt_index.size and np.all(vt_index != 0):
         vt_index = counters.resolve(vt_index, b"vt", uv_table.shape[0])
         corner_uvs = uv_table[vt_index[triangles]].astype(np.float32)
-        uv = _per_vertex(faces, corner_uvs, positions.shape[0])
+        uv = _per_vertex(v_index, vt_index, uv_table, positions.shape[0])
         if uv is not None:
             attributes["uv"] = uv
     if vn_index.size and np.all(vn_index != 0):
         vn_index = counters.resolve(vn_index, b"vn", normal_table.shape[0])
-        normal = _per_vertex(faces, normal_table[vn_index[triangles]], positions.shape[0])
+        normal = _per_vertex(v_index, vn_index, normal_table, positions.shape[0])
         if normal is not None:
             attributes["normal"] = normal
     return Mesh(
@@ -205,12 +205,21 @@ class _Counters:
         return int(np.searchsorted(np.cumsum(self._corner_counts), corner, side="right"))
 
 
-def _per_vertex(faces: np.ndarray, corner_values: np.ndarray, n_vertices: int) -> np.ndarray | None:
-    """(n, k) values per vertex if every corner of a vertex carries the same value, else
-    None (a seam). Vertices no face uses get zeros."""
-    flat_values = corner_values.reshape(faces.size, -1)
-    per_vertex = np.zeros((n_vertices, flat_values.shape[1]), dtype=flat_values.dtype)
-    per_vertex[faces.ravel()] = flat_values
-    if np.array_equal(per_vertex[faces.ravel()], flat_values):
+def _per_vertex(
+    v_index: np.ndarray, value_index: np.ndarray, table: np.ndarray, n_vertices: int
+) -> np.ndarray | None:
+    """(n, k) values per vertex from per-corner indices into `table`, or None when a
+    vertex carries different values at different corners (a seam).
+
+    When every corner uses value i with vertex i (one vt or vn line per v line, as this
+    module writes), the table is the answer, unreferenced vertices included; otherwise
+    vertices no face uses get zeros.
+    """
+    if table.shape[0] == n_vertices and np.array_equal(v_index, value_index):
+        return table
+    corner_values = table[value_index]
+    per_vertex = np.zeros((n_vertices, table.shape[1]), dtype=table.dtype)
+    per_vertex[v_index] = corner_values
+    if np.array_equal(per_vertex[v_index], corner_values):
         return per_vertex
     return None

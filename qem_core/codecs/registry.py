@@ -115,6 +115,7 @@ def encode_mesh(
     texture: bytes | None = None,
     *,
     quantize_bits: int | None = None,
+    grid_box: tuple[object, object] | None = None,
     name: str | None = None,
 ) -> bytes:
     """Encode a triangle mesh as "ply", "obj", "glb" or "msgpack" bytes.
@@ -124,7 +125,8 @@ def encode_mesh(
         "uv" (n, 2) with the origin at the bottom-left of the image.
     texture : optional PNG or JPEG bytes; stored by "glb" (with UVs) and "msgpack".
     quantize_bits : "msgpack" only: None stores float32 positions, 16 (or 1..15) stores
-        uint16 positions on a grid of that many bits over the bounding box.
+        uint16 positions on a grid of that many bits over the bounding box, or over
+        `grid_box` = (low, high) when given (e.g. the split stream's grid).
     name : "msgpack" only: stored in the message.
 
     Raises InvalidOptionsError for an unknown format or an option the format does not
@@ -141,9 +143,15 @@ def encode_mesh(
         raise InvalidMeshError("texture must be the bytes of a PNG or JPEG image")
     if fmt == "msgpack":
         return write_msgpack(
-            vertices, faces, attributes, texture, quantize_bits=quantize_bits, name=name
+            vertices,
+            faces,
+            attributes,
+            texture,
+            quantize_bits=quantize_bits,
+            grid_box=grid_box,
+            name=name,
         )
-    if quantize_bits is not None:
+    if quantize_bits is not None or grid_box is not None:
         raise InvalidOptionsError(f"quantize_bits applies to 'msgpack' only, not {fmt!r}")
     return _WRITERS[fmt](vertices, faces, attributes, texture)
 

@@ -27,7 +27,6 @@ from pathlib import Path
 from typing import Any
 
 import httpx
-import msgpack
 
 __all__ = [
     "DEFAULT_SERVER",
@@ -260,8 +259,11 @@ class QemClient:
 
     def splits(self, mesh_id: str, n1: int | None = None, n2: int | None = None) -> Iterator[bytes]:
         """The vertex-split stream refining level `n1` to `n2` (None: base and full),
-        as it arrives: one msgpack frame (bytes) at a time, for
-        `qem_core.stream.decode_split_frames`."""
+        as it arrives: one frame payload (bytes) at a time, as
+        `qem_core.stream.SplitStreamDecoder.feed` takes them."""
+        from qem_core import CorruptFileError
+        from qem_core.stream import iter_frames  # numpy-heavy: only when streaming
+
         params = {key: value for key, value in (("from", n1), ("to", n2)) if value is not None}
         try:
             with self._http.stream(
@@ -270,35 +272,15 @@ class QemClient:
                 if response.is_error:
                     response.read()
                     _raise_for_problem(response)
-                yield from _frames(response.iter_bytes())
+                yield from iter_frames(response.iter_bytes())
         except httpx.TransportError as exc:
             raise QemConnectionError(self._describe(exc)) from exc
+        except CorruptFileError as exc:
+            raise QemClientError(f"the split stream of mesh {mesh_id} is damaged: {exc}") from exc
 
     def delete(self, mesh_id: str) -> None:
         """Remove a mesh and its data from the server."""
         self._request("DELETE", f"/v1/meshes/{mesh_id}")
-
-
-def _frames(chunks: Iterator[bytes]) -> Iterator[bytes]:
-    """Cut a byte stream of concatenated msgpack objects into one bytes per object."""
-    unpacker = msgpack.Unpacker(max_buffer_size=1 << 30)
-    buffer = bytearray()
-    base = start = 0  # stream offsets of buffer[0] and of the next frame
-    for chunk in chunks:
-        unpacker.feed(chunk)
-        buffer += chunk
-        while True:
-            try:
-                unpacker.skip()
-            except msgpack.OutOfData:
-                break
-            end = unpacker.tell()
-            yield bytes(buffer[start - base : end - base])
-            start = end
-        del buffer[: start - base]
-        base = start
-    if buffer:
-        raise QemClientError(f"the split stream ended inside a frame ({len(buffer)} bytes left)")
 
 
 def _raise_for_problem(response: httpx.Response) -> None:

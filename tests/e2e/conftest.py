@@ -55,15 +55,32 @@ class ServerProcess:
 
     def start(self) -> ServerProcess:
         command = [
-            sys.executable, "-m", "client.cli", "serve", "--host", "127.0.0.1", "--port",
-            "0", "--data-dir", str(self.data_dir), "--workers", "1", "--log-level", "info",
+            sys.executable,
+            "-m",
+            "client.cli",
+            "serve",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            "0",
+            "--data-dir",
+            str(self.data_dir),
+            "--workers",
+            "1",
+            "--log-level",
+            "info",
         ]
         self._started.clear()
         self.process = subprocess.Popen(
-            command, cwd=REPO, env=self.env, stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT, text=True,
+            command,
+            cwd=REPO,
+            env=self.env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
         )
-        threading.Thread(target=self._drain, args=(self.process,), daemon=True).start()
+        self._drainer = threading.Thread(target=self._drain, args=(self.process,), daemon=True)
+        self._drainer.start()
         if not self._started.wait(STARTUP_TIMEOUT) or not self.url:
             self.stop()
             raise RuntimeError(f"qem serve did not start:\n{self.log}")
@@ -90,10 +107,14 @@ class ServerProcess:
         if process.poll() is None:
             process.send_signal(sig)
         try:
-            return process.wait(timeout)
+            status = process.wait(timeout)
         except subprocess.TimeoutExpired:
             process.kill()
-            return process.wait(timeout)
+            status = process.wait(timeout)
+        self._drainer.join(timeout)  # the pipe reaches end of file once the server is gone
+        assert process.stdout is not None
+        process.stdout.close()
+        return status
 
 
 @pytest.fixture

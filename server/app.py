@@ -1,0 +1,95 @@
+"""The FastAPI application factory.
+
+    uvicorn --factory server.app:create_app     # settings from QEM_* variables
+    qem serve --data-dir ./data                 # the same, through the CLI
+
+Nothing is built at import time. The lifespan opens the storage, removes leftovers of
+interrupted writes, starts the job queue (which requeues interrupted builds), queues the
+demo mesh if asked and the storage is empty, and on shutdown stops the builds (they are
+requeued by the next start).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI
+from fastapi.middleware.cors import CORSMiddleware
+from starlette.concurrency import run_in_threadpool
+
+from . import __version__
+from .jobs import JobQueue, open_jobs
+from .lod_cache import LodCache
+from .problems import install_problem_handlers
+from .routes import health, meshes
+from .routes.viewer import mount_viewer
+from .settings import Settings, get_settings
+from .storage import Storage, open_storage
+from .uploads import import_file
+
+__all__ = ["create_app"]
+
+log = logging.getLogger("qem.server")
+
+_EXPOSED_HEADERS = sorted({*meshes.LOD_HEADERS, *meshes.SPLIT_HEADERS, "Content-Length"})
+
+
+def _start(settings: Settings) -> tuple[Storage, JobQueue]:
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    storage = open_storage(settings)
+    try:
+        storage.collect_garbage()
+        jobs = open_jobs(settings, storage)
+        jobs.start()
+    except BaseException:
+        storage.close()
+        raise
+    if settings.demo_mesh is not None and storage.metadata.count() == 0:
+        record = import_file(storage, jobs, settings.demo_mesh)
+        log.info("queued the demo mesh %s as %s", settings.demo_mesh, record.id)
+    return storage, jobs
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """A new app serving the storage described by `settings` (default: `get_settings()`,
+    read from the environment)."""
+    settings = settings or get_settings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        storage, jobs = await run_in_threadpool(_start, settings)
+        app.state.storage = storage
+        app.state.jobs = jobs
+        app.state.lod_cache = LodCache(storage, settings.mesh_cache_size, settings.lod_cache_bytes)
+        log.info("serving %s (%d worker(s))", settings.data_dir, settings.workers)
+        try:
+            yield
+        finally:
+            await run_in_threadpool(jobs.close)
+            storage.close()
+
+    app = FastAPI(
+        title="qem-lod",
+        version=__version__,
+        summary="Progressive meshes served at any level of detail",
+        description="Upload a triangle mesh once; fetch it at any vertex count, or the "
+        "vertex splits that refine one level to another. Errors are RFC 9457 problem "
+        "details.",
+        lifespan=lifespan,
+    )
+    app.state.settings = settings
+    install_problem_handlers(app)
+    app.add_middleware(
+        CORSMiddleware,
+        allow_origins=list(settings.cors_allow_origins),
+        allow_methods=["GET"],
+        allow_headers=["If-None-Match"],
+        expose_headers=_EXPOSED_HEADERS,
+        max_age=86400,
+    )
+    app.include_router(health.router)
+    app.include_router(meshes.router)
+    mount_viewer(app, settings.web_dir)
+    return app

@@ -1,0 +1,87 @@
+"""FastAPI dependencies: the services of the running app, and the write guard.
+
+The services live on ``app.state`` (set by `create_app`'s lifespan); tests replace any of
+these with ``app.dependency_overrides``.
+"""
+
+from __future__ import annotations
+
+import hmac
+from typing import Annotated
+
+from fastapi import Depends, Request
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+
+from .jobs import JobQueue
+from .lod_cache import LodCache
+from .problems import Problem
+from .settings import Settings
+from .storage import Storage
+
+__all__ = [
+    "CacheDep",
+    "JobsDep",
+    "SettingsDep",
+    "StorageDep",
+    "WriterDep",
+    "app_settings",
+    "lod_cache",
+    "job_queue",
+    "require_writer",
+    "storage",
+]
+
+
+def app_settings(request: Request) -> Settings:
+    return request.app.state.settings
+
+
+def storage(request: Request) -> Storage:
+    return request.app.state.storage
+
+
+def job_queue(request: Request) -> JobQueue:
+    return request.app.state.jobs
+
+
+def lod_cache(request: Request) -> LodCache:
+    return request.app.state.lod_cache
+
+
+SettingsDep = Annotated[Settings, Depends(app_settings)]
+StorageDep = Annotated[Storage, Depends(storage)]
+JobsDep = Annotated[JobQueue, Depends(job_queue)]
+CacheDep = Annotated[LodCache, Depends(lod_cache)]
+
+_bearer = HTTPBearer(
+    auto_error=False,
+    description="Needed for uploads and deletes when the server has write tokens "
+    "(QEM_TOKENS); reads are public.",
+)
+
+
+def require_writer(
+    settings: SettingsDep,
+    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
+) -> None:
+    """Let the request through if writes are open or it carries a configured token."""
+    if not settings.tokens:
+        return
+    challenge = {"WWW-Authenticate": 'Bearer realm="qem-lod"'}
+    if credentials is None:
+        raise Problem(
+            "unauthorized",
+            "this server needs a write token: send 'Authorization: Bearer <token>' "
+            "(the qem command reads it from QEM_TOKEN)",
+            headers=challenge,
+        )
+    given = credentials.credentials.encode()
+    if not any(hmac.compare_digest(given, token.encode()) for token in settings.tokens):
+        raise Problem(
+            "forbidden",
+            "the bearer token is not one of this server's write tokens",
+            headers={"WWW-Authenticate": 'Bearer realm="qem-lod", error="invalid_token"'},
+        )
+
+
+WriterDep = Annotated[None, Depends(require_writer)]

@@ -1,0 +1,293 @@
+"""/v1/meshes: upload, list, inspect, fetch levels and split streams, delete.
+
+Levels and split streams of a built mesh never change (a .qpm key names one build), so
+their responses carry a strong ETag derived from the .qpm key, the level and the format,
+are cacheable for a year, and answer ``If-None-Match`` with 304 without loading anything.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+from typing import Annotated
+
+from fastapi import APIRouter, Header, Query, Request, Response
+from fastapi.responses import StreamingResponse
+from starlette.concurrency import run_in_threadpool
+
+import qem_core
+from qem_core import codecs
+from qem_core import stream as split_stream
+
+from .. import __version__
+from ..deps import CacheDep, JobsDep, SettingsDep, StorageDep, WriterDep
+from ..problems import Problem, problem_responses
+from ..schemas import (
+    LodFormat,
+    MeshInfo,
+    MeshList,
+    UploadAccepted,
+    UploadParams,
+    mesh_info,
+    upload_options,
+)
+from ..storage import MeshRecord, new_mesh_id, upload_key
+from ..uploads import check_file_name, receive_upload, register_upload
+
+__all__ = ["router"]
+
+router = APIRouter(prefix="/v1/meshes", tags=["meshes"])
+
+IMMUTABLE = "public, max-age=31536000, immutable"
+LOD_HEADERS = ("ETag", "X-Lod-Vertices", "X-Lod-Faces", "X-Lod-Error")
+SPLIT_HEADERS = ("ETag", "X-Splits-From", "X-Splits-To")
+
+_UPLOAD_BODY = {
+    "required": True,
+    "content": {
+        "multipart/form-data": {
+            "schema": {
+                "type": "object",
+                "properties": {"file": {"type": "string", "format": "binary"}},
+                "required": ["file"],
+            }
+        },
+        "application/octet-stream": {"schema": {"type": "string", "format": "binary"}},
+    },
+}
+
+
+def _find(storage, mesh_id: str) -> MeshRecord:
+    record = storage.metadata.get(mesh_id)
+    if record is None:
+        raise Problem("mesh-not-found", f"no mesh has id {mesh_id!r}")
+    return record
+
+
+def _find_ready(storage, mesh_id: str) -> MeshRecord:
+    record = _find(storage, mesh_id)
+    if record.status == "failed":
+        raise Problem(
+            "mesh-failed",
+            f"mesh {mesh_id} could not be built: {record.error}",
+            reason=record.error,
+        )
+    if record.status != "ready":
+        raise Problem(
+            "mesh-not-ready",
+            f"mesh {mesh_id} is {record.status} ({record.progress:.0%}); retry when its "
+            f"status is 'ready'",
+            headers={"Retry-After": "1"},
+            mesh_status=record.status,
+            progress=record.progress,
+        )
+    return record
+
+
+def _clamp(record: MeshRecord, n: int | None) -> int:
+    assert record.n_base is not None and record.n_vertices is not None
+    if n is None:
+        return record.n_vertices
+    return min(max(n, record.n_base), record.n_vertices)
+
+
+def _etag(record: MeshRecord, *parts: object) -> str:
+    key = "|".join(str(part) for part in (__version__, record.qpm_key, *parts))
+    return '"' + hashlib.sha256(key.encode()).hexdigest()[:32] + '"'
+
+
+def _matches(if_none_match: str | None, etag: str) -> bool:
+    """If-None-Match uses the weak comparison (RFC 9110, 13.1.2)."""
+    if not if_none_match:
+        return False
+    if if_none_match.strip() == "*":
+        return True
+    return any(tag.strip().removeprefix("W/") == etag for tag in if_none_match.split(","))
+
+
+def _not_modified(etag: str, headers: dict[str, str]) -> Response:
+    return Response(status_code=304, headers={"ETag": etag, "Cache-Control": IMMUTABLE, **headers})
+
+
+@router.post(
+    "",
+    status_code=202,
+    response_model=UploadAccepted,
+    summary="Upload a mesh and queue its build",
+    responses=problem_responses(400, 401, 403, 413, 415, 422),
+    openapi_extra={"requestBody": _UPLOAD_BODY},
+)
+async def upload_mesh(
+    request: Request,
+    response: Response,
+    params: Annotated[UploadParams, Query()],
+    _: WriterDep,
+    settings: SettingsDep,
+    storage: StorageDep,
+    jobs: JobsDep,
+) -> UploadAccepted:
+    """The mesh (PLY, OBJ, STL, OFF or GLB) as the multipart field ``file``, or as the
+    raw body with ``?name=`` giving its file name. Build options go in the query. The
+    file is parsed by the build; follow ``GET /v1/meshes/{id}`` until ``ready`` or
+    ``failed``."""
+    options = upload_options(params)
+    qem_core.BuildOptions.from_mapping(options)  # refuse bad options before the upload
+    name = check_file_name(params.name)
+    mesh_id = new_mesh_id()
+    writer = await run_in_threadpool(storage.blobs.writer, upload_key(mesh_id))
+    try:
+        given_name = await receive_upload(request, writer, settings.max_upload_bytes)
+        if name is None:
+            name = check_file_name(given_name)
+        await run_in_threadpool(writer.commit)
+    except BaseException:
+        await run_in_threadpool(writer.abort)
+        raise
+    record = await run_in_threadpool(
+        lambda: register_upload(
+            storage,
+            jobs,
+            mesh_id=mesh_id,
+            name=name or "upload",
+            size=writer.size,
+            options=options,
+        )
+    )
+    url = f"/v1/meshes/{record.id}"
+    response.headers["Location"] = url
+    return UploadAccepted(id=record.id, url=url)
+
+
+@router.get("", response_model=MeshList, summary="List meshes with their status")
+def list_meshes(storage: StorageDep) -> MeshList:
+    return MeshList(meshes=[mesh_info(record) for record in storage.metadata.records()])
+
+
+@router.get(
+    "/{mesh_id}",
+    response_model=MeshInfo,
+    summary="Metadata and build status of a mesh",
+    responses=problem_responses(404),
+)
+def get_mesh(mesh_id: str, storage: StorageDep, response: Response) -> MeshInfo:
+    response.headers["Cache-Control"] = "no-cache"
+    return mesh_info(_find(storage, mesh_id))
+
+
+@router.get(
+    "/{mesh_id}/lod",
+    summary="The mesh at a level of detail",
+    response_class=Response,
+    responses={
+        200: {
+            "description": "the mesh with exactly X-Lod-Vertices vertices",
+            "content": {codecs.MEDIA_TYPES[f]: {} for f in ("ply", "obj", "glb", "msgpack")},
+        },
+        304: {"description": "not modified (If-None-Match)"},
+        **problem_responses(404, 409, 422),
+    },
+)
+def get_lod(
+    mesh_id: str,
+    storage: StorageDep,
+    cache: CacheDep,
+    vertices: Annotated[
+        int | None,
+        Query(
+            ge=1,
+            description="vertex count; clamped into [min_vertices, vertices] (the served "
+            "count is in X-Lod-Vertices); default: the full mesh",
+        ),
+    ] = None,
+    format: Annotated[LodFormat, Query(description="encoding of the mesh")] = "ply",
+    if_none_match: Annotated[str | None, Header()] = None,
+) -> Response:
+    record = _find_ready(storage, mesh_id)
+    n = _clamp(record, vertices)
+    etag = _etag(record, "lod", n, format)
+    if _matches(if_none_match, etag):
+        return _not_modified(etag, {"X-Lod-Vertices": str(n)})
+    lod = cache.lod(record, n, format)
+    stem = Path(record.name).stem or record.id
+    return Response(
+        lod.content,
+        media_type=codecs.MEDIA_TYPES[format],
+        headers={
+            "ETag": etag,
+            "Cache-Control": IMMUTABLE,
+            "X-Lod-Vertices": str(lod.n_vertices),
+            "X-Lod-Faces": str(lod.n_faces),
+            "X-Lod-Error": repr(lod.error),
+            "Content-Disposition": f'inline; filename="{_header_safe(stem)}-{n}.{format}"',
+        },
+    )
+
+
+@router.get(
+    "/{mesh_id}/splits",
+    summary="The vertex splits refining one level to another, streamed",
+    response_class=StreamingResponse,
+    responses={
+        200: {
+            "description": "msgpack frames of vertex splits (see docs/wire-format)",
+            "content": {split_stream.MEDIA_TYPE: {}},
+        },
+        304: {"description": "not modified (If-None-Match)"},
+        **problem_responses(404, 409, 422),
+    },
+)
+def get_splits(
+    mesh_id: str,
+    storage: StorageDep,
+    cache: CacheDep,
+    from_: Annotated[
+        int | None,
+        Query(alias="from", ge=1, description="vertex count held; default: the base mesh"),
+    ] = None,
+    to: Annotated[
+        int | None,
+        Query(ge=1, description="vertex count wanted; default: the full mesh"),
+    ] = None,
+    if_none_match: Annotated[str | None, Header()] = None,
+) -> Response:
+    record = _find_ready(storage, mesh_id)
+    assert record.n_base is not None
+    n1 = _clamp(record, record.n_base if from_ is None else from_)
+    n2 = _clamp(record, to)
+    if n1 > n2:
+        raise Problem(
+            "invalid-request",
+            f"from={n1} is above to={n2} (after clamping into [{record.n_base}, "
+            f"{record.n_vertices}]); splits only refine, so ask for lod?vertices={n2}",
+        )
+    etag = _etag(record, "splits", n1, n2)
+    headers = {"X-Splits-From": str(n1), "X-Splits-To": str(n2)}
+    if _matches(if_none_match, etag):
+        return _not_modified(etag, headers)
+    pm = cache.progressive_mesh(record)  # load now, so a damaged file is a problem response
+    return StreamingResponse(
+        split_stream.encode_split_frames(pm, n1, n2),
+        media_type=split_stream.MEDIA_TYPE,
+        headers={"ETag": etag, "Cache-Control": IMMUTABLE, **headers},
+    )
+
+
+@router.delete(
+    "/{mesh_id}",
+    status_code=204,
+    response_class=Response,
+    summary="Delete a mesh and its data",
+    responses=problem_responses(401, 403, 404),
+)
+def delete_mesh(mesh_id: str, _: WriterDep, storage: StorageDep, cache: CacheDep) -> Response:
+    record = storage.delete_mesh(mesh_id)
+    if record is None:
+        raise Problem("mesh-not-found", f"no mesh has id {mesh_id!r}")
+    cache.evict(record)
+    return Response(status_code=204)
+
+
+def _header_safe(text: str) -> str:
+    return "".join(
+        ch if ch.isascii() and ch.isprintable() and ch not in '"\\' else "_" for ch in text
+    )

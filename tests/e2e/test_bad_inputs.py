@@ -1,0 +1,138 @@
+"""Bad input against the real server: each case and the status it gets, never a 5xx.
+
+Files are parsed by the build worker, not the request: a malformed upload is accepted
+(202), its build ends ``failed`` with a readable reason, and its levels answer 409 with
+that reason. What the request itself can tell (size, extension, options, parameters,
+unknown ids) is refused at once.
+"""
+
+from __future__ import annotations
+
+import struct
+
+import httpx
+import pytest
+
+from client.http import QemBuildFailed
+
+from .conftest import shared_mesh
+
+PROBLEM = "application/problem+json"
+HEADER = "ply\nformat ascii 1.0\nelement vertex {v}\nproperty float x\nproperty float y\n"
+HEADER += "property float z\nelement face {f}\nproperty list uchar int vertex_indices\n"
+HEADER += "end_header\n"
+TRIANGLE = "0 0 0\n1 0 0\n0 1 0\n"
+
+
+def ascii_ply(vertices: str = TRIANGLE, faces: str = "3 0 1 2\n", v=3, f=1) -> bytes:
+    return (HEADER.format(v=v, f=f) + vertices + faces).encode()
+
+
+def binary_ply_claiming(n_vertices: int) -> bytes:
+    header = HEADER.replace("ascii", "binary_little_endian").format(v=n_vertices, f=1)
+    return header.encode() + struct.pack("<9f", 0, 0, 0, 1, 0, 0, 0, 1, 0)
+
+
+# name, file name, content, words expected in the failure reason (any of them)
+BUILD_FAILURES = [
+    ("malformed header", "a.ply", b"ply\nformat ascii 1.0\nelement vertex three\n", ["ply"]),
+    ("NaN coordinates", "a.ply", ascii_ply("nan 0 0\n1 0 0\n0 1 0\n"), ["nan"]),
+    ("infinite coordinates", "a.ply", ascii_ply("inf 0 0\n1 0 0\n0 1 0\n"), ["inf"]),
+    ("index out of range", "a.ply", ascii_ply(faces="3 0 1 7\n"), ["range", "index"]),
+    ("no faces", "a.ply", ascii_ply(faces="", f=0), ["face"]),
+    ("counts beyond the file", "a.ply", binary_ply_claiming(10**6), ["vertex", "bytes", "short"]),
+    ("unknown content", "mesh", b"\x00\x01 not a mesh at all \xff" * 10, ["format"]),
+    ("bad OBJ", "a.obj", b"v 0 0 0\nv 1 0 x\nv 0 1 0\nf 1 2 3\n", ["obj", "x"]),
+    ("truncated STL", "a.stl", b"\x00" * 80 + struct.pack("<I", 1000) + b"\x00" * 10, ["stl"]),
+    ("OFF counts too large", "a.off", b"OFF\n100 100 0\n0 0 0\n", ["off", "vert"]),
+    ("broken GLB", "a.glb", b"glTF" + struct.pack("<II", 2, 9999) + b"\x00" * 8, ["glb", "gltf"]),
+]
+
+
+@pytest.fixture(scope="module")
+def http(server):
+    with httpx.Client(base_url=server.url, timeout=60) as client:
+        yield client
+
+
+@pytest.fixture(scope="module")
+def ready_mesh(server):
+    with server.client() as qem:
+        mesh_id = qem.upload(shared_mesh("spot.ply"))
+        return qem.wait_ready(mesh_id, timeout=300)
+
+
+def assert_problem(response: httpx.Response, status: int) -> dict:
+    assert response.status_code == status, response.text
+    assert response.headers["content-type"] == PROBLEM
+    body = response.json()
+    assert body["status"] == status and body["title"] and body["detail"]
+    return body
+
+
+@pytest.mark.parametrize(
+    ("case", "name", "content", "words"), BUILD_FAILURES, ids=[c[0] for c in BUILD_FAILURES]
+)
+def test_bad_file_fails_its_build_with_a_reason(server, http, case, name, content, words):
+    accepted = http.post("/v1/meshes", params={"name": name}, content=content)
+    assert accepted.status_code == 202, accepted.text
+    mesh_id = accepted.json()["id"]
+    with server.client() as qem, pytest.raises(QemBuildFailed) as failed:
+        qem.wait_ready(mesh_id, timeout=120)
+    info = failed.value.info
+    assert info["status"] == "failed", info
+    assert any(word in info["error"].lower() for word in words), info["error"]
+    body = assert_problem(http.get(f"/v1/meshes/{mesh_id}/lod"), 409)
+    assert body["type"] == "/problems/mesh-failed" and info["error"] in body["detail"]
+    assert_problem(http.get(f"/v1/meshes/{mesh_id}/splits"), 409)
+    # The upload is kept with the failed record, and goes with it.
+    assert (server.data_dir / "blobs" / "uploads" / mesh_id).is_file()
+    assert http.delete(f"/v1/meshes/{mesh_id}").status_code == 204
+
+
+REFUSED_UPLOADS = [
+    ("empty body", {"params": {"name": "a.ply"}, "content": b""}, 400),
+    ("unknown extension", {"params": {"name": "a.xyz"}, "content": ascii_ply()}, 415),
+    ("too large", {"params": {"name": "a.ply"}, "content": b"\0" * (5 * 2**20)}, 413),
+    ("unknown option", {"params": {"name": "a.ply", "speed": "9"}, "content": b"x"}, 422),
+    ("bad option value", {"params": {"name": "a.ply", "weighting": "x"}, "content": b"x"}, 422),
+    (
+        "option out of range",
+        {"params": {"name": "a.ply", "pair_threshold": "2"}, "content": b"x"},
+        422,
+    ),
+    ("multipart without file", {"files": {"mesh": ("a.ply", b"x")}}, 400),
+]
+
+
+@pytest.mark.parametrize(
+    ("case", "request_kwargs", "status"), REFUSED_UPLOADS, ids=[c[0] for c in REFUSED_UPLOADS]
+)
+def test_refused_upload(server, http, case, request_kwargs, status):
+    before = sorted(p.name for p in (server.data_dir / "blobs").rglob("*"))
+    assert_problem(http.post("/v1/meshes", **request_kwargs), status)
+    assert sorted(p.name for p in (server.data_dir / "blobs").rglob("*")) == before
+
+
+BAD_READS = [
+    ("unknown id", "GET", "/v1/meshes/ffffffffffffffff", {}, 404),
+    ("unknown id lod", "GET", "/v1/meshes/ffffffffffffffff/lod", {}, 404),
+    ("unknown id splits", "GET", "/v1/meshes/ffffffffffffffff/splits", {}, 404),
+    ("unknown id delete", "DELETE", "/v1/meshes/ffffffffffffffff", {}, 404),
+    ("vertices zero", "GET", "{mesh}/lod", {"vertices": 0}, 422),
+    ("vertices negative", "GET", "{mesh}/lod", {"vertices": -10}, 422),
+    ("vertices not a number", "GET", "{mesh}/lod", {"vertices": "ten"}, 422),
+    ("unknown lod format", "GET", "{mesh}/lod", {"format": "stl"}, 422),
+    ("splits backwards", "GET", "{mesh}/splits", {"from": 900, "to": 100}, 422),
+    ("splits from zero", "GET", "{mesh}/splits", {"from": 0}, 422),
+    ("unknown route", "GET", "/v1/nothing", {}, 404),
+    ("wrong method", "PUT", "/v1/meshes", {}, 405),
+]
+
+
+@pytest.mark.parametrize(
+    ("case", "method", "path", "params", "status"), BAD_READS, ids=[c[0] for c in BAD_READS]
+)
+def test_bad_request(http, ready_mesh, case, method, path, params, status):
+    path = path.format(mesh=f"/v1/meshes/{ready_mesh['id']}")
+    assert_problem(http.request(method, path, params=params), status)

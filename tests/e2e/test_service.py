@@ -1,0 +1,143 @@
+"""The whole path: `qem serve` on 127.0.0.1, the real client, bunny.ply.
+
+Upload, follow the build to ready, fetch levels in every format with exact counts (and
+equal to a local build), refine lod(N1) with the split stream into lod(N2), conditional
+requests, delete.
+"""
+
+from __future__ import annotations
+
+import httpx
+import msgpack
+import numpy as np
+import pytest
+
+import qem_core
+from client.http import QemHTTPError
+from qem_core import codecs
+from qem_core.quantise import Grid
+from qem_core.stream import SplitStreamDecoder, grid_for
+
+from .conftest import shared_mesh
+
+
+@pytest.fixture(scope="module")
+def bunny_path():
+    return shared_mesh("bunny.ply")
+
+
+@pytest.fixture(scope="module")
+def bunny(server, bunny_path) -> dict:
+    seen = []
+    sent = []
+    with server.client() as qem:
+        mesh_id = qem.upload(bunny_path, progress=lambda done, total: sent.append((done, total)))
+        info = qem.wait_ready(mesh_id, timeout=600, progress=seen.append)
+    assert sent[-1][0] == sent[-1][1] == bunny_path.stat().st_size
+    statuses = [step["status"] for step in seen]
+    assert statuses[-1] == "ready" and set(statuses) <= {"queued", "building", "ready"}
+    progress = [step["progress"] for step in seen]
+    assert progress == sorted(progress)
+    return info
+
+
+@pytest.fixture(scope="module")
+def local_pm(bunny_path):
+    """The same mesh built here, with the same (default) options."""
+    return qem_core.build_mesh(codecs.load_mesh(bunny_path))
+
+
+def test_metadata(qem, bunny, local_pm):
+    assert bunny["name"] == "bunny.ply"
+    assert bunny["vertices"] == local_pm.n_full
+    assert bunny["faces"] == local_pm.n_faces_full
+    assert bunny["min_vertices"] == local_pm.n_base
+    assert np.allclose(bunny["bbox"], local_pm.bbox)
+    assert bunny["id"] in [mesh["id"] for mesh in qem.list()]
+    assert qem.info(bunny["id"]) == bunny
+
+
+@pytest.mark.parametrize("fmt", ["ply", "obj", "glb", "msgpack"])
+def test_lod_counts_are_exact(qem, bunny, local_pm, fmt):
+    # float32 files round positions; msgpack quantises them to the split stream's grid.
+    tolerance = 0.5 * grid_for(local_pm).step + 1e-9 if fmt == "msgpack" else 1e-6
+    for n in (bunny["min_vertices"], 100, 1000, 12345, bunny["vertices"]):
+        lod = qem.fetch_lod(bunny["id"], n, fmt)
+        mesh = codecs.load_mesh(lod.content, format=fmt)
+        vertices, faces = local_pm.lod(n)
+        assert lod.n_vertices == mesh.n_vertices == n
+        assert lod.n_faces == mesh.n_faces == len(faces)
+        assert np.array_equal(mesh.faces, faces)
+        assert np.all(np.abs(mesh.vertices - vertices) <= tolerance)
+        assert lod.error == pytest.approx(local_pm.error(n))
+
+
+def test_lod_is_clamped_and_says_so(qem, bunny):
+    assert qem.fetch_lod(bunny["id"], 10**9).n_vertices == bunny["vertices"]
+    assert qem.fetch_lod(bunny["id"], 1).n_vertices == bunny["min_vertices"]
+
+
+@pytest.mark.parametrize(("n1", "n2"), [(None, 2000), (1000, 20000), (20000, None)])
+def test_splits_refine_lod_n1_into_lod_n2(qem, bunny, n1, n2):
+    # A viewer starts from the level as quantised msgpack: the split stream's grid.
+    start_bytes = qem.lod(bunny["id"], bunny["min_vertices"] if n1 is None else n1, "msgpack")
+    start_message = msgpack.unpackb(start_bytes)
+    start = codecs.decode_msgpack_mesh(start_bytes)
+    target = codecs.load_mesh(qem.lod(bunny["id"], n2, "ply"), format="ply")
+    payloads = list(qem.splits(bunny["id"], n1, n2))
+    assert len(payloads) > 1  # a big range comes in several frames
+    grid = Grid.over_box(start_message["bbox"][:3], start_message["bbox"][3:], 16)
+    decoder = SplitStreamDecoder(grid.quantise(start.vertices), start.faces)
+    for payload in payloads:
+        decoder.feed(payload)
+    assert decoder.vertices.shape == target.vertices.shape
+    assert np.array_equal(decoder.faces, target.faces)
+    # Positions agree within half a grid step (plus the PLY's float32 rounding).
+    tolerance = 0.5 * grid.step + 1e-7 * np.abs(target.vertices).max()
+    assert np.all(np.abs(decoder.vertices - target.vertices) <= tolerance)
+
+
+def test_empty_split_range(qem, bunny):
+    assert list(qem.splits(bunny["id"], 500, 500)) == []
+
+
+def test_etags_and_304(server, bunny):
+    url = f"{server.url}/v1/meshes/{bunny['id']}"
+    with httpx.Client() as http:
+        first = http.get(f"{url}/lod", params={"vertices": 777, "format": "glb"})
+        assert first.status_code == 200
+        assert first.headers["cache-control"] == "public, max-age=31536000, immutable"
+        etag = first.headers["etag"]
+        assert etag.startswith('"') and etag.endswith('"')
+        again = http.get(
+            f"{url}/lod",
+            params={"vertices": 777, "format": "glb"},
+            headers={"If-None-Match": etag},
+        )
+        assert (again.status_code, again.content, again.headers["etag"]) == (304, b"", etag)
+        other = http.get(f"{url}/lod", params={"vertices": 778, "format": "glb"})
+        assert other.headers["etag"] != etag
+        splits = http.get(f"{url}/splits", params={"from": 100, "to": 200})
+        cached = http.get(
+            f"{url}/splits",
+            params={"from": 100, "to": 200},
+            headers={"If-None-Match": splits.headers["etag"]},
+        )
+        assert cached.status_code == 304
+    with server.client() as qem:
+        lod = qem.fetch_lod(bunny["id"], 777, "glb")
+        assert lod.etag == etag and qem.fetch_lod(bunny["id"], 777, "glb", etag=etag) is None
+
+
+def test_delete(server, qem):
+    path = shared_mesh("spot.ply")
+    mesh_id = qem.upload(path)
+    qem.wait_ready(mesh_id, timeout=300)
+    blobs = server.data_dir / "blobs"
+    assert any(mesh_id in p.as_posix() for p in blobs.rglob("*") if p.is_file())
+    qem.delete(mesh_id)
+    with pytest.raises(QemHTTPError) as caught:
+        qem.info(mesh_id)
+    assert caught.value.status == 404 and caught.value.type == "/problems/mesh-not-found"
+    assert not any(mesh_id in p.as_posix() for p in blobs.rglob("*"))
+    assert mesh_id not in [mesh["id"] for mesh in qem.list()]

@@ -1,0 +1,120 @@
+"""Slow, obvious reference code the tests compare the kernels with."""
+
+from __future__ import annotations
+
+from collections import Counter, defaultdict
+from pathlib import Path
+
+import numpy as np
+
+SHARED_MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
+
+
+def edge_face_counts(faces) -> Counter:
+    counts = Counter()
+    for face in np.asarray(faces).tolist():
+        for k in range(3):
+            a, b = face[k], face[(k + 1) % 3]
+            counts[(min(a, b), max(a, b))] += 1
+    return counts
+
+
+def euler_characteristic(faces) -> int:
+    faces = np.asarray(faces)
+    return len(np.unique(faces)) - len(edge_face_counts(faces)) + len(faces)
+
+
+def is_closed_manifold(faces) -> bool:
+    """Every edge in exactly two faces and every vertex link a single cycle."""
+    faces = np.asarray(faces)
+    if any(c != 2 for c in edge_face_counts(faces).values()):
+        return False
+    link = defaultdict(list)
+    for a, b, c in faces.tolist():
+        link[a].append((b, c))
+        link[b].append((c, a))
+        link[c].append((a, b))
+    for edges in link.values():
+        following = dict(edges)
+        if len(following) != len(edges):
+            return False
+        start = edges[0][0]
+        v, steps = following[start], 1
+        while v != start and steps <= len(edges):
+            v, steps = following.get(v, start), steps + 1
+        if steps != len(edges):
+            return False
+    return True
+
+
+def _count_classes(links) -> int:
+    """Number of connected classes of the items joined by the pairs in `links`."""
+    parent = {}
+
+    def find(x):
+        while parent.setdefault(x, x) != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    for a, b in links:
+        parent[find(a)] = find(b)
+    return len({find(v) for v in parent})
+
+
+def boundary_loops(faces) -> int:
+    """Number of closed loops formed by border edges (edges of one face)."""
+    return _count_classes(e for e, c in edge_face_counts(faces).items() if c == 1)
+
+
+def components(faces) -> int:
+    """Number of edge-connected pieces of the surface."""
+    triangles = np.asarray(faces).tolist()
+    return _count_classes(pair for a, b, c in triangles for pair in ((a, b), (b, c)))
+
+
+def face_normals(vertices, faces) -> np.ndarray:
+    p = np.asarray(vertices)[np.asarray(faces)]
+    return np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+
+
+def triangle_set(vertices, faces, decimals: int = 12) -> Counter:
+    """The surface as a multiset of triangles given by rotated corner positions, so two
+    meshes compare equal whatever their vertex and face numbering."""
+    out = Counter()
+    for tri in np.round(np.asarray(vertices)[np.asarray(faces)], decimals).tolist():
+        rotations = [tuple(map(tuple, tri[k:] + tri[:k])) for k in range(3)]
+        out[min(rotations)] += 1
+    return out
+
+
+def plane_quadric(p0, p1, p2, weighting: str) -> np.ndarray:
+    """The (10,) quadric of the plane through a triangle, weighted as qem_core does."""
+    n = np.cross(p1 - p0, p2 - p0)
+    length = np.linalg.norm(n)
+    if length == 0:
+        return np.zeros(10)
+    n = n / length
+    d = -n @ p0
+    area = length / 2
+    w = {"none": 1.0, "area": area, "volume": area * area}[weighting]
+    return _plane(n, d, w)
+
+
+def border_quadric(pa, pb, face_normal, weighting: str, weight: float) -> np.ndarray:
+    e = pb - pa
+    n = np.cross(e, face_normal)
+    n = n / np.linalg.norm(n)
+    length2 = e @ e
+    w = weight * {"none": 1.0, "area": length2, "volume": length2 * length2}[weighting]
+    return _plane(n, -n @ pa, w)
+
+
+def _plane(n, d, w) -> np.ndarray:
+    a = w * np.outer(n, n)
+    return np.array([a[0, 0], a[0, 1], a[0, 2], a[1, 1], a[1, 2], a[2, 2], *(w * d * n), w * d * d])
+
+
+def evaluate_quadric(q, v) -> float:
+    a = np.array([[q[0], q[1], q[2]], [q[1], q[3], q[4]], [q[2], q[4], q[5]]])
+    return float(v @ a @ v + 2 * q[6:9] @ v + q[9])

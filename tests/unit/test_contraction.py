@@ -1,0 +1,129 @@
+"""The greedy contraction on hand-drawn meshes with known outcomes."""
+
+import numpy as np
+import pytest
+
+import qem_core
+from qem_core.simplify import contract_greedily
+from tests import reference
+from tests.tiny_meshes import OCTAHEDRON, OPEN_BOX, SQUARE, TETRAHEDRON, grid, icosphere
+
+
+def every_level(pm):
+    for n in range(pm.n_base, pm.n_full + 1):
+        yield n, *pm.lod(n)
+
+
+def test_tetrahedron_cannot_shrink():
+    pm = qem_core.build(*TETRAHEDRON)
+    assert (pm.n_base, pm.n_full) == (4, 4)
+    assert pm.lod(1)[1].shape == (4, 3)
+
+
+def test_octahedron_shrinks_to_a_tetrahedron_and_stays_closed():
+    pm = qem_core.build(*OCTAHEDRON)
+    assert (pm.n_base, pm.n_full) == (4, 6)
+    for n, vertices, faces in every_level(pm):
+        assert vertices.shape == (n, 3)
+        assert reference.is_closed_manifold(faces)
+        assert reference.euler_characteristic(faces) == 2
+
+
+def test_square_becomes_one_triangle():
+    pm = qem_core.build(*SQUARE)
+    assert (pm.n_base, pm.n_full) == (3, 4)
+    vertices, faces = pm.lod(3)
+    assert faces.shape == (1, 3)
+    assert reference.boundary_loops(faces) == 1
+
+
+def test_open_box_keeps_its_single_border_loop():
+    pm = qem_core.build(*OPEN_BOX)
+    assert pm.n_full == 8
+    for _n, _vertices, faces in every_level(pm):
+        assert reference.boundary_loops(faces) == 1
+        assert reference.euler_characteristic(faces) == 1
+
+
+def test_two_tetrahedra_stay_two_components():
+    v, f = TETRAHEDRON
+    pm = qem_core.build(np.concatenate([v, v + 5]), np.concatenate([f, f + 4]))
+    assert pm.n_base == 8 and reference.components(pm.lod(8)[1]) == 2
+
+
+def test_flat_grid_stays_in_its_plane():
+    pm = qem_core.build(*grid(6))
+    for _n, vertices, _faces in every_level(pm):
+        assert np.all(vertices[:, 2] == 0.0)
+
+
+def test_flat_grid_costs_nothing_without_border_planes():
+    pm = qem_core.build(*grid(6), {"boundary_weight": 0.0})
+    assert pm.error(pm.n_base) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_border_of_a_flat_grid_does_not_erode():
+    """Border vertices slide along the border, never off the square; at 4 vertices the
+    square is exactly its four corners (every other border vertex goes first, free)."""
+    pm = qem_core.build(*grid(6))
+    for _n, vertices, _faces in every_level(pm):
+        assert vertices[:, :2].min() >= 0 and vertices[:, :2].max() <= 5
+    vertices, _faces = pm.lod(4)
+    corners = {(0.0, 0.0), (5.0, 0.0), (0.0, 5.0), (5.0, 5.0)}
+    assert corners <= {tuple(p) for p in vertices[:, :2].tolist()}
+
+
+def test_error_never_decreases_as_levels_coarsen():
+    pm = qem_core.build(*icosphere(2, jitter=0.05))
+    errors = pm.errors()
+    assert errors[-1] == 0.0
+    assert np.all(np.diff(errors) <= 0)
+
+
+@pytest.mark.parametrize("options", [
+    {}, {"error_mode": "exact"}, {"weighting": "none"}, {"weighting": "volume"},
+    {"boundary_weight": 0.0}, {"max_face_turn_deg": 180.0},
+])
+def test_build_is_deterministic(options, tmp_path):
+    mesh = icosphere(2, jitter=0.05, seed=3)
+    first, second = qem_core.build(*mesh, options), qem_core.build(*mesh, options)
+    first.save(tmp_path / "a.qpm")
+    second.save(tmp_path / "b.qpm")
+    assert (tmp_path / "a.qpm").read_bytes() == (tmp_path / "b.qpm").read_bytes()
+
+
+def test_progress_is_reported_from_zero_to_one():
+    seen = []
+    qem_core.build(*icosphere(2), progress=seen.append)
+    assert seen[0] == 0.0 and seen[-1] == 1.0
+    assert seen == sorted(seen)
+
+
+def test_lod_equals_the_greedy_run_stopped_there():
+    vertices, faces = icosphere(2, jitter=0.05, seed=1)
+    options = qem_core.BuildOptions()
+    pm = qem_core.build(vertices, faces, options)
+    for n in (pm.n_base, 20, 60, 120, pm.n_full):
+        run = contract_greedily(vertices.astype(float), faces.astype(np.int32), options,
+                                max_contractions=pm.n_full - n)
+        alive = run.complex.face_alive.astype(bool)
+        expected = reference.triangle_set(run.complex.vertices, run.complex.faces[alive])
+        assert reference.triangle_set(*pm.lod(n)) == expected
+
+
+@pytest.mark.parametrize("bad, message", [
+    ((np.zeros((0, 3)), np.zeros((0, 3), int)), "vert"),
+    ((np.array([[0, 0, np.nan], [1, 0, 0], [0, 1, 0]]), [[0, 1, 2]]), "finite"),
+    ((np.eye(3), [[0, 1, 3]]), "index 3"),
+    ((np.eye(3), np.zeros((0, 3), int)), "face"),
+])
+def test_bad_meshes_are_refused_clearly(bad, message):
+    with pytest.raises(qem_core.InvalidMeshError, match=f"(?i){message}"):
+        qem_core.build(*bad)
+
+
+def test_bad_options_are_refused_clearly():
+    with pytest.raises(qem_core.InvalidOptionsError, match="weighting"):
+        qem_core.build(*SQUARE, {"weighting": "mass"})
+    with pytest.raises(qem_core.InvalidOptionsError, match="unknown build option"):
+        qem_core.build(*SQUARE, {"colour": 1})

@@ -1,0 +1,396 @@
+"""The app in process (TestClient, real lifespan and worker pool): uploads, limits, auth,
+levels, ETags, CORS, deletes, and what a failed or partial upload leaves behind."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import anyio
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from server.app import create_app
+from server.deps import job_queue
+from server.settings import Settings
+
+TOKEN = "write-token-0123456789"
+PROBLEM = "application/problem+json"
+
+
+def sphere_ply(rings: int = 8, segments: int = 12) -> bytes:
+    """ASCII PLY of a closed latitude-longitude sphere: 2 + (rings-1)*segments vertices."""
+    vertices = [(0.0, 0.0, 1.0)]
+    for i in range(1, rings):
+        theta = math.pi * i / rings
+        for j in range(segments):
+            phi = 2 * math.pi * j / segments
+            vertices.append(
+                (math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta))
+            )
+    vertices.append((0.0, 0.0, -1.0))
+    south = len(vertices) - 1
+
+    def ring(i: int, j: int) -> int:
+        return 1 + (i - 1) * segments + j % segments
+
+    faces = []
+    for j in range(segments):
+        faces.append((0, ring(1, j), ring(1, j + 1)))
+        faces.append((south, ring(rings - 1, j + 1), ring(rings - 1, j)))
+        for i in range(1, rings - 1):
+            a, b = ring(i, j), ring(i, j + 1)
+            c, d = ring(i + 1, j), ring(i + 1, j + 1)
+            faces += [(a, c, d), (a, d, b)]
+    header = (
+        f"ply\nformat ascii 1.0\nelement vertex {len(vertices)}\nproperty float x\n"
+        f"property float y\nproperty float z\nelement face {len(faces)}\n"
+        "property list uchar int vertex_indices\nend_header\n"
+    )
+    body = "".join(f"{x:.6f} {y:.6f} {z:.6f}\n" for x, y, z in vertices)
+    body += "".join(f"3 {a} {b} {c}\n" for a, b, c in faces)
+    return (header + body).encode()
+
+
+SPHERE = sphere_ply()
+SPHERE_VERTICES = 2 + 7 * 12
+
+
+def make_client(tmp_path, **overrides) -> TestClient:
+    values = {"data_dir": tmp_path / "data", "workers": 1, "web_dir": tmp_path / "no-web"}
+    settings = Settings(**{**values, **overrides}, _env_file=None)
+    return TestClient(create_app(settings), raise_server_exceptions=False)
+
+
+@pytest.fixture(scope="module")
+def client(tmp_path_factory):
+    with make_client(tmp_path_factory.mktemp("app"), max_upload_bytes=64 * 1024) as test_client:
+        yield test_client
+
+
+def upload(client: TestClient, data: bytes = SPHERE, name: str = "sphere.ply", **params):
+    return client.post("/v1/meshes", params={"name": name, **params}, content=data)
+
+
+def wait_for(client: TestClient, mesh_id: str, timeout: float = 120.0) -> dict:
+    """Poll the mesh until its build is over (ready or failed)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        info = client.get(f"/v1/meshes/{mesh_id}").json()
+        if info["status"] in ("ready", "failed") or time.monotonic() > deadline:
+            return info
+        time.sleep(0.05)
+
+
+@pytest.fixture(scope="module")
+def sphere(client) -> dict:
+    response = upload(client)
+    assert response.status_code == 202, response.text
+    info = wait_for(client, response.json()["id"])
+    assert info["status"] == "ready", info
+    return info
+
+
+def assert_problem(response, status: int, kind: str | None = None) -> dict:
+    assert response.status_code == status, response.text
+    assert response.headers["content-type"] == PROBLEM
+    body = response.json()
+    assert body["status"] == status and body["title"] and body["detail"]
+    if kind is not None:
+        assert body["type"] == f"/problems/{kind}"
+    return body
+
+
+def leftover_files(client: TestClient) -> list[str]:
+    blobs = client.app.state.settings.data_dir / "blobs"
+    return sorted(p.relative_to(blobs).as_posix() for p in blobs.rglob("*") if p.is_file())
+
+
+# -- basics ----------------------------------------------------------------------------
+
+
+def test_healthz(client):
+    response = client.get("/healthz")
+    assert response.status_code == 200 and response.json()["status"] == "ok"
+
+
+def test_openapi_documents_the_api(client):
+    schema = client.get("/openapi.json").json()
+    assert set(schema["paths"]) >= {
+        "/v1/meshes",
+        "/v1/meshes/{mesh_id}",
+        "/v1/meshes/{mesh_id}/lod",
+        "/v1/meshes/{mesh_id}/splits",
+        "/healthz",
+    }
+    upload_params = {p["name"] for p in schema["paths"]["/v1/meshes"]["post"]["parameters"]}
+    assert {"name", "weighting", "error_mode", "preserve_topology"} <= upload_params
+    not_found = schema["paths"]["/v1/meshes/{mesh_id}"]["get"]["responses"]["404"]
+    assert PROBLEM in not_found["content"]
+
+
+def test_unknown_route_is_a_problem(client):
+    assert_problem(client.get("/v2/nothing"), 404)
+
+
+# -- upload and build ------------------------------------------------------------------
+
+
+def test_upload_builds_and_lists(client, sphere):
+    assert sphere["name"] == "sphere.ply"
+    assert sphere["vertices"] == SPHERE_VERTICES and sphere["faces"] == 2 * 12 * 7
+    assert 4 <= sphere["min_vertices"] < SPHERE_VERTICES
+    assert sphere["progress"] == 1.0 and sphere["error"] is None and sphere["attempts"] == 1
+    assert np.allclose(sphere["bbox"], [[-1, -1, -1], [1, 1, 1]], atol=1e-6)
+    listed = client.get("/v1/meshes").json()["meshes"]
+    assert sphere["id"] in [mesh["id"] for mesh in listed]
+
+
+def test_multipart_upload_keeps_the_file_name(client):
+    response = client.post(
+        "/v1/meshes", files={"file": ("dir/ball.ply", SPHERE, "application/octet-stream")}
+    )
+    assert response.status_code == 202, response.text
+    assert response.headers["location"] == f"/v1/meshes/{response.json()['id']}"
+    assert client.get(response.headers["location"]).json()["name"] == "ball.ply"
+
+
+def test_build_options_are_recorded(client):
+    response = upload(client, weighting="volume", preserve_topology="true")
+    info = client.get(f"/v1/meshes/{response.json()['id']}").json()
+    assert info["options"] == {"weighting": "volume", "preserve_topology": True}
+
+
+def test_malformed_file_fails_with_a_reason(client):
+    response = upload(client, b"ply\nformat ascii 1.0\nelement vertex 3\nend_header\n1 2\n")
+    info = wait_for(client, response.json()["id"])
+    assert info["status"] == "failed" and info["error"]
+    body = assert_problem(client.get(f"/v1/meshes/{info['id']}/lod"), 409, "mesh-failed")
+    assert info["error"] in body["detail"]
+
+
+@pytest.mark.parametrize(
+    ("request_kwargs", "status", "kind"),
+    [
+        ({"content": b""}, 400, "bad-upload"),
+        ({"content": SPHERE, "params": {"name": "mesh.xyz"}}, 415, "unsupported-format"),
+        ({"content": SPHERE, "params": {"weighting": "heavy"}}, 422, "invalid-request"),
+        ({"content": SPHERE, "params": {"boundary_weight": "-1"}}, 422, "invalid-options"),
+        ({"content": SPHERE, "params": {"max_face_turn_deg": "nan"}}, 422, "invalid-options"),
+        ({"content": SPHERE, "params": {"colour": "red"}}, 422, "invalid-request"),
+        ({"content": b"x" * (64 * 1024 + 1)}, 413, "upload-too-large"),
+        ({"files": {"other": ("a.ply", SPHERE)}}, 400, "bad-upload"),
+        (
+            {"content": b"--zz\r\nbroken", "headers": {"content-type": "multipart/form-data"}},
+            400,
+            "bad-upload",
+        ),
+    ],
+)
+def test_bad_uploads_are_refused_and_leave_nothing(client, request_kwargs, status, kind):
+    before = leftover_files(client)
+    count = len(client.get("/v1/meshes").json()["meshes"])
+    request_kwargs.setdefault("params", {}).setdefault("name", "mesh.ply")
+    assert_problem(client.post("/v1/meshes", **request_kwargs), status, kind)
+    assert leftover_files(client) == before
+    assert len(client.get("/v1/meshes").json()["meshes"]) == count
+
+
+def test_oversized_stream_without_length_is_cut_off(client):
+    before = leftover_files(client)
+
+    def body():
+        for _ in range(100):
+            yield b"y" * 4096
+
+    response = client.post("/v1/meshes", params={"name": "big.ply"}, content=body())
+    assert_problem(response, 413, "upload-too-large")
+    assert leftover_files(client) == before
+
+
+def test_client_disconnect_mid_upload_leaves_nothing(client):
+    before = leftover_files(client)
+    messages = iter(
+        [
+            {"type": "http.request", "body": SPHERE[:100], "more_body": True},
+            {"type": "http.disconnect"},
+        ]
+    )
+    sent = []
+
+    async def receive():
+        return next(messages)
+
+    async def send(message):
+        sent.append(message)
+
+    scope = {
+        "type": "http",
+        "asgi": {"version": "3.0"},
+        "http_version": "1.1",
+        "method": "POST",
+        "scheme": "http",
+        "path": "/v1/meshes",
+        "raw_path": b"/v1/meshes",
+        "query_string": b"name=cut.ply",
+        "root_path": "",
+        "headers": [],
+        "client": ("127.0.0.1", 1),
+        "server": ("testserver", 80),
+    }
+    anyio.run(client.app, scope, receive, send)
+    assert sent[0]["status"] == 400
+    assert leftover_files(client) == before
+
+
+def test_not_ready_is_409_with_progress(tmp_path):
+    class Parked:  # a queue that never runs anything
+        def submit(self, mesh_id):
+            pass
+
+    with make_client(tmp_path) as client:
+        client.app.dependency_overrides[job_queue] = Parked
+        mesh_id = upload(client).json()["id"]
+        body = assert_problem(client.get(f"/v1/meshes/{mesh_id}/lod"), 409, "mesh-not-ready")
+        assert body["mesh_status"] == "queued"
+        assert_problem(client.get(f"/v1/meshes/{mesh_id}/splits"), 409, "mesh-not-ready")
+    # The next start picks the parked build up.
+    with make_client(tmp_path) as client:
+        assert wait_for(client, mesh_id)["status"] == "ready"
+
+
+# -- levels ----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("fmt", ["ply", "obj", "glb", "msgpack"])
+def test_lod_counts_and_headers(client, sphere, fmt):
+    n = sphere["min_vertices"] + 10
+    response = client.get(f"/v1/meshes/{sphere['id']}/lod", params={"vertices": n, "format": fmt})
+    assert response.status_code == 200, response.text
+    assert response.headers["x-lod-vertices"] == str(n)
+    assert int(response.headers["x-lod-faces"]) > 0
+    assert response.headers["cache-control"] == "public, max-age=31536000, immutable"
+    assert response.headers["etag"].startswith('"') and len(response.content) > 0
+
+
+@pytest.mark.parametrize(
+    ("asked", "served"), [(1, "min_vertices"), (10**12, "vertices"), (None, "vertices")]
+)
+def test_lod_is_clamped(client, sphere, asked, served):
+    params = {} if asked is None else {"vertices": asked}
+    response = client.get(f"/v1/meshes/{sphere['id']}/lod", params=params)
+    assert response.headers["x-lod-vertices"] == str(sphere[served])
+
+
+def test_etag_and_304(client, sphere):
+    url = f"/v1/meshes/{sphere['id']}/lod"
+    first = client.get(url, params={"vertices": 20})
+    etag = first.headers["etag"]
+    again = client.get(url, params={"vertices": 20}, headers={"If-None-Match": etag})
+    assert again.status_code == 304 and again.content == b""
+    assert again.headers["etag"] == etag
+    weak = client.get(url, params={"vertices": 20}, headers={"If-None-Match": f'"x", W/{etag}'})
+    assert weak.status_code == 304
+    assert client.get(url, params={"vertices": 21}).headers["etag"] != etag
+    assert client.get(url, params={"vertices": 20, "format": "obj"}).headers["etag"] != etag
+    # Requests served by the same clamped level share the tag.
+    top = client.get(url, params={"vertices": sphere["vertices"]}).headers["etag"]
+    assert client.get(url, params={"vertices": 10**9}).headers["etag"] == top
+
+
+def test_splits_stream(client, sphere):
+    url = f"/v1/meshes/{sphere['id']}/splits"
+    response = client.get(url, params={"from": sphere["min_vertices"], "to": 40})
+    assert response.status_code == 200, response.text
+    assert response.headers["x-splits-from"] == str(sphere["min_vertices"])
+    assert response.headers["x-splits-to"] == "40"
+    assert len(response.content) > 0
+    assert (
+        client.get(url, headers={"If-None-Match": client.get(url).headers["etag"]}).status_code
+        == 304
+    )
+
+
+@pytest.mark.parametrize(
+    "params",
+    [{"vertices": 0}, {"vertices": -5}, {"vertices": "many"}, {"format": "fbx"}],
+)
+def test_bad_lod_parameters(client, sphere, params):
+    assert_problem(client.get(f"/v1/meshes/{sphere['id']}/lod", params=params), 422)
+
+
+def test_splits_only_refine(client, sphere):
+    response = client.get(f"/v1/meshes/{sphere['id']}/splits", params={"from": 50, "to": 20})
+    assert "only refine" in assert_problem(response, 422)["detail"]
+
+
+@pytest.mark.parametrize("path", ["", "/lod", "/splits"])
+def test_unknown_id(client, path):
+    assert_problem(client.get(f"/v1/meshes/0000000000000000{path}"), 404, "mesh-not-found")
+
+
+# -- delete, auth, CORS, viewer ----------------------------------------------------------
+
+
+def test_delete_removes_everything(client):
+    mesh_id = upload(client).json()["id"]
+    wait_for(client, mesh_id)
+    assert client.delete(f"/v1/meshes/{mesh_id}").status_code == 204
+    assert_problem(client.get(f"/v1/meshes/{mesh_id}"), 404)
+    assert not [name for name in leftover_files(client) if mesh_id in name]
+    assert_problem(client.delete(f"/v1/meshes/{mesh_id}"), 404)
+
+
+def test_writes_need_a_token_when_configured(tmp_path):
+    with make_client(tmp_path, tokens=TOKEN) as client:
+        body = assert_problem(upload(client), 401, "unauthorized")
+        assert "Bearer" in body["detail"]
+        denied = client.post(
+            "/v1/meshes",
+            params={"name": "a.ply"},
+            content=SPHERE,
+            headers={"Authorization": "Bearer not-the-token-at-all"},
+        )
+        assert_problem(denied, 403, "forbidden")
+        assert client.get("/v1/meshes").status_code == 200  # reads stay public
+        accepted = client.post(
+            "/v1/meshes",
+            params={"name": "a.ply"},
+            content=SPHERE,
+            headers={"Authorization": f"Bearer {TOKEN}"},
+        )
+        assert accepted.status_code == 202
+        mesh_id = accepted.json()["id"]
+        assert_problem(client.delete(f"/v1/meshes/{mesh_id}"), 401)
+        deleted = client.delete(
+            f"/v1/meshes/{mesh_id}", headers={"Authorization": f"Bearer {TOKEN}"}
+        )
+        assert deleted.status_code == 204
+
+
+def test_cors_allows_get_from_any_origin(client, sphere):
+    response = client.get(
+        f"/v1/meshes/{sphere['id']}/lod", headers={"Origin": "https://example.org"}
+    )
+    assert response.headers["access-control-allow-origin"] == "*"
+    assert "x-lod-vertices" in response.headers["access-control-expose-headers"].lower()
+    preflight = client.options(
+        "/v1/meshes",
+        headers={"Origin": "https://example.org", "Access-Control-Request-Method": "POST"},
+    )
+    assert "POST" not in preflight.headers.get("access-control-allow-methods", "")
+
+
+def test_root_serves_the_viewer_folder(tmp_path):
+    web = tmp_path / "web"
+    web.mkdir()
+    (web / "index.html").write_text("<h1>viewer</h1>")
+    with make_client(tmp_path, web_dir=web) as client:
+        assert client.get("/").text == "<h1>viewer</h1>"
+        assert client.get("/healthz").status_code == 200
+
+
+def test_root_lists_meshes_without_a_viewer(client, sphere):
+    page = client.get("/")
+    assert page.status_code == 200 and "sphere.ply" in page.text

@@ -28,8 +28,10 @@ def format_sci(value: float | None) -> str:
 
 
 def format_ms(seconds: float | None) -> str:
-    """Seconds as milliseconds with one decimal; "-" for None."""
-    return "-" if seconds is None else f"{seconds * 1e3:.1f}"
+    """Seconds as milliseconds: one decimal, three below 1 ms ("0.042"); "-" for None."""
+    if seconds is None:
+        return "-"
+    return f"{seconds * 1e3:.3f}" if seconds < 1e-3 else f"{seconds * 1e3:.1f}"
 
 
 def format_mib(n_bytes: int | None, increase_bytes: int | None = None) -> str:

@@ -93,6 +93,7 @@ class QualityRow:
     best_peer_rms: str | None = None
     hausdorff_ratio: float | None = None
     rms_ratio: float | None = None
+    measured_at: str | None = None  # UTC, ISO 8601; reused peer rows keep their own
 
     @property
     def ok(self) -> bool:
@@ -141,6 +142,7 @@ def run_peer(
     """Simplify `mesh` with `peer` to `fraction` of its referenced vertices and assess it."""
     target_vertices, target_faces = target_counts(mesh, fraction)
     row = QualityRow(fraction, peer.name, "peer", target_vertices, target_faces)
+    row.measured_at = _now()
     try:
         measured = measure_in_child(
             peer.simplify,
@@ -235,6 +237,7 @@ def run_qem_variant(
         for n in counts:
             level = extracted["levels"][n]
             row = QualityRow(fraction, label, "qem", n, None, time_s=level["seconds"])
+            row.measured_at = _now()
             served = count_referenced(level["faces"])
             notes = []
             if served != n:
@@ -253,6 +256,7 @@ def _reusable_peer_rows(stored_entry: dict[str, Any], samples: int) -> dict[tupl
     for stored in stored_entry.get("rows", []):
         if stored.get("kind") == "peer":
             row = QualityRow(**stored)
+            row.measured_at = row.measured_at or stored_entry.get("measured_at")
             rows[(row.fraction, row.simplifier)] = row
     return rows
 
@@ -358,16 +362,20 @@ def write_mesh_report(path: Path, entry: dict[str, Any], rows: Sequence[QualityR
     stored = mesh_info["stored_vertices"]
     referenced = mesh_info["referenced_vertices"]
     stored_note = "" if stored == referenced else f" ({stored} stored)"
+    peer_rows = [row for row in rows if row.kind == "peer" and row.times_s]
+    run_counts = "/".join(str(n) for n in sorted({len(row.times_s) for row in peer_rows})) or "-"
+    reused_from = entry.get("peers_reused_from")
+    reused_note = f" Peer rows reused from the run of {reused_from}." if reused_from else ""
     lines = [
         f"# Simplification quality on `{entry['mesh']}`: qem-lod and peers",
         "",
         f"Input: {referenced} referenced vertices{stored_note}, {mesh_info['faces']} faces, "
         f"{mesh_info['boundary_loops']} boundary loops, bbox diagonal "
-        f"{mesh_info['bbox_diagonal']:.4g}. Measured {entry['measured_at']}.",
+        f"{mesh_info['bbox_diagonal']:.4g}. Measured {entry['measured_at']}.{reused_note}",
         *machine_header_lines(),
         "",
         f"Peers: each call in a child process, time of the simplification call alone, median "
-        f"of {settings['runs']} run(s), in ms; target F = round(F x target V / V), as in "
+        f"of {run_counts} run(s), in ms; target F = round(F x target V / V), as in "
         "/work/shared/peer-results. Peak RSS: the child's peak during the call (MiB, "
         "includes the loaded input and the tool's libraries) and its increase over the "
         "RSS before the call. Hausdorff / RMS: symmetric, as a fraction of the original "
@@ -402,12 +410,14 @@ def run_mesh(
 ) -> tuple[dict[str, Any], list[QualityRow]]:
     """All peers and qem-lod variants on one mesh; returns the JSON entry and the rows."""
     input_topology = count_topology(mesh.faces)
-    peer_rows = []
+    peer_rows, reused_times = [], set()
     for fraction in fractions:
         for peer in peers:
             row = reusable.get((fraction, peer.name))
             if row is None:
                 row = run_peer(mesh, peer, fraction, runs, samples, input_topology)
+            elif row.measured_at:
+                reused_times.add(row.measured_at)
             _progress(
                 f"{mesh.name} {fraction:g} {peer.name}: {row.out_vertices} V, "
                 f"{format_ms(row.time_s)} ms, RMS {format_sci(row.rms)}, {row.status}"
@@ -430,7 +440,7 @@ def run_mesh(
     rows = sorted(peer_rows + qem_rows, key=lambda r: (order[r.fraction], r.kind == "qem"))
     entry = {
         "mesh": mesh.name,
-        "measured_at": datetime.now(UTC).isoformat(timespec="seconds"),
+        "measured_at": _now(),
         "machine": describe_machine(),
         "input": {
             "stored_vertices": mesh.n_stored,
@@ -441,11 +451,16 @@ def run_mesh(
             "bbox_diagonal": mesh.bbox_diagonal,
         },
         "settings": {"fractions": list(fractions), "runs": runs, "samples": samples},
+        "peers_reused_from": min(reused_times, default=None),
         "qem_note": qem_note,
         "qem_builds": builds,
         "rows": [asdict(row) for row in rows],
     }
     return entry, rows
+
+
+def _now() -> str:
+    return datetime.now(UTC).isoformat(timespec="seconds")
 
 
 def _progress(message: str) -> None:

@@ -186,8 +186,8 @@ def contract_greedily(
     lists = make_face_lists(cx.faces, n, capacity=6 * m + 1024)
     hood = make_neighbourhood(n)
     heap = make_heap(edges.shape[0] + 8 * n + 1024)
-    fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_slot, cx.edge_quadrics, heap.cost,
-              heap.ids, heap.size, edges, options.error_mode == "exact", RANK_TOLERANCE)
+    fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_slot, cx.edge_quadrics, heap.entries,
+              heap.size, edges, options.error_mode == "exact", RANK_TOLERANCE)
     record = _make_record(n, m)
     budget = n if max_contractions is None else max(0, int(max_contractions))
     done = 0

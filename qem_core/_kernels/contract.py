@@ -27,7 +27,7 @@ import numba
 import numpy as np
 
 from .adjacency import compact
-from .heap import drop_stale, pop_top, push
+from .heap import cost_key, drop_stale, pop_top, push, top_pair
 from .link import REFUSE_NONE, check_link, gather
 from .placement import place
 from .quadrics import QUADRIC_SIZE
@@ -105,10 +105,11 @@ edge_cost = numba.njit(cache=True)(_edge_cost)
 
 def _push_vertex_edges(vertices, vertex_quadrics, vertex_stamp, edge_slot, edge_quadrics,
                        faces, face_alive, start, count, pool, tag, generation,
-                       heap_cost, heap_ids, heap_size, v, exact, rank_tolerance):
+                       heap_entries, heap_size, v, exact, rank_tolerance):
     """Push every edge of v with its current cost. False if the heap filled up."""
     quadric = np.zeros(QUADRIC_SIZE)
     position = np.zeros(3)
+    scratch = np.zeros(1)
     generation[0] += 1
     g = generation[0]
     tag[v] = g
@@ -125,8 +126,8 @@ def _push_vertex_edges(vertices, vertex_quadrics, vertex_stamp, edge_slot, edge_
             cost = edge_cost(vertices, vertex_quadrics, edge_slot, edge_quadrics, v, x,
                              exact, rank_tolerance, quadric, position)
             lo, hi = (v, x) if v < x else (x, v)
-            if not push(heap_cost, heap_ids, heap_size, cost, lo, hi, vertex_stamp[lo],
-                        vertex_stamp[hi]):
+            if not push(heap_entries, heap_size, cost_key(cost, scratch), lo, hi,
+                        vertex_stamp[lo], vertex_stamp[hi]):
                 return False
     return True
 
@@ -293,7 +294,7 @@ rewrite_faces = numba.njit(cache=True)(_rewrite_faces)
 
 def _push_after_contraction(vertices, vertex_quadrics, vertex_stamp, vertex_refused,
                             edge_slot, edge_quadrics, faces, face_alive, start, count, pool,
-                            tag, generation, retry, heap_cost, heap_ids, heap_size, a, exact,
+                            tag, generation, retry, heap_entries, heap_size, a, exact,
                             rank_tolerance):
     """Push the edges of the new vertex a, and again those of neighbours that had an edge
     refused: a's change may have lifted the reason. ``retry`` is (n,) int32 scratch.
@@ -319,7 +320,7 @@ def _push_after_contraction(vertices, vertex_quadrics, vertex_stamp, vertex_refu
     for i in range(n_retry):
         if not push_vertex_edges(vertices, vertex_quadrics, vertex_stamp, edge_slot,
                                  edge_quadrics, faces, face_alive, start, count, pool, tag,
-                                 generation, heap_cost, heap_ids, heap_size, retry[i], exact,
+                                 generation, heap_entries, heap_size, retry[i], exact,
                                  rank_tolerance):
             for j in range(i, n_retry - 1):
                 vertex_refused[retry[j]] = 1  # not pushed yet: try again on next change
@@ -335,7 +336,7 @@ def _resume_pushes(cx, lists, hood, heap, a, params):
     return push_after_contraction(
         cx.vertices, cx.vertex_quadrics, cx.vertex_stamp, cx.vertex_refused, cx.edge_slot,
         cx.edge_quadrics, cx.faces, cx.face_alive, lists.start, lists.count, lists.pool,
-        hood.tag_scratch, hood.generation, hood.retry, heap.cost, heap.ids, heap.size, a,
+        hood.tag_scratch, hood.generation, hood.retry, heap.entries, heap.size, a,
         params[PARAM_EXACT] != 0.0, params[PARAM_RANK_TOLERANCE],
     )
 
@@ -361,7 +362,7 @@ def _run_contractions(cx, lists, hood, heap, record, params, max_steps):
     tag_a, count_a, tag_b, count_b = hood.tag_a, hood.count_a, hood.tag_b, hood.count_b
     tag_opposite, tag_scratch, generation = hood.tag_opposite, hood.tag_scratch, hood.generation
     retry = hood.retry
-    heap_cost, heap_ids, heap_size = heap.cost, heap.ids, heap.size
+    heap_entries, heap_size = heap.entries, heap.size
     n = vertices.shape[0]
     quadric = np.zeros(QUADRIC_SIZE)
     position = np.zeros(3)
@@ -369,15 +370,14 @@ def _run_contractions(cx, lists, hood, heap, record, params, max_steps):
     while steps < max_steps:
         if heap_size[0] == 0:
             return STATUS_EXHAUSTED, steps, -1
-        a = heap_ids[0, 0]
-        b = heap_ids[0, 1]
+        a, b, stamp_a, stamp_b = top_pair(heap_entries)
         if (
-            vertex_stamp[a] != heap_ids[0, 2]
-            or vertex_stamp[b] != heap_ids[0, 3]
+            vertex_stamp[a] != stamp_a
+            or vertex_stamp[b] != stamp_b
             or not vertex_alive[a]
             or not vertex_alive[b]
         ):
-            pop_top(heap_cost, heap_ids, heap_size)
+            pop_top(heap_entries, heap_size)
             continue
         # The survivor is the vertex with more faces: fewer corners to relabel.
         if count[b] > count[a]:
@@ -393,13 +393,13 @@ def _run_contractions(cx, lists, hood, heap, record, params, max_steps):
         gather(faces, face_alive, start, count, pool, a, b, tag_a, count_a, tag_b, count_b,
                tag_opposite, g)
         if tag_a[b] != g:
-            pop_top(heap_cost, heap_ids, heap_size)  # no longer an edge
+            pop_top(heap_entries, heap_size)  # no longer an edge
             continue
         if preserve_topology and check_link(
             faces, face_alive, start, count, pool, a, b, tag_a, count_a, tag_b, count_b,
             tag_opposite, g,
         ) != REFUSE_NONE:
-            pop_top(heap_cost, heap_ids, heap_size)
+            pop_top(heap_entries, heap_size)
             vertex_refused[a] = 1
             vertex_refused[b] = 1
             continue
@@ -408,11 +408,11 @@ def _run_contractions(cx, lists, hood, heap, record, params, max_steps):
         px, py, pz = position[0], position[1], position[2]
         if not faces_keep_orientation(vertices, faces, face_alive, face_normals, start, count,
                                       pool, a, b, px, py, pz, cos_step):
-            pop_top(heap_cost, heap_ids, heap_size)
+            pop_top(heap_entries, heap_size)
             vertex_refused[a] = 1
             vertex_refused[b] = 1
             continue
-        pop_top(heap_cost, heap_ids, heap_size)
+        pop_top(heap_entries, heap_size)
         if exact:
             merge_edge_quadrics(edge_slot, edge_quadrics, cx.face_quadrics, faces, face_alive,
                                 start, count, pool, n, a, b)
@@ -439,14 +439,14 @@ def _run_contractions(cx, lists, hood, heap, record, params, max_steps):
         vertex_stamp[a] += 1
         vertex_stamp[b] += 1
         steps += 1
-        if heap_size[0] + 8 * (count[a] + 2) >= heap_cost.shape[0]:
-            drop_stale(heap_cost, heap_ids, heap_size, vertex_stamp)
-            if 2 * heap_size[0] >= heap_cost.shape[0]:
+        if heap_size[0] + 8 * (count[a] + 2) >= heap_entries.shape[0]:
+            drop_stale(heap_entries, heap_size, vertex_stamp)
+            if 2 * heap_size[0] >= heap_entries.shape[0]:
                 return STATUS_NEED_HEAP_SPACE, steps, a
         if not push_after_contraction(vertices, vertex_quadrics, vertex_stamp, vertex_refused,
                                       edge_slot, edge_quadrics, faces, face_alive, start,
-                                      count, pool, tag_scratch, generation, retry, heap_cost,
-                                      heap_ids, heap_size, a, exact, rank_tolerance):
+                                      count, pool, tag_scratch, generation, retry,
+                                      heap_entries, heap_size, a, exact, rank_tolerance):
             return STATUS_NEED_HEAP_SPACE, steps, a
     return STATUS_STEPS_DONE, steps, -1
 

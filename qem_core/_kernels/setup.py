@@ -34,21 +34,19 @@ def _make_edge_slots(edges, n_vertices):
 make_edge_slots = numba.njit(cache=True)(_make_edge_slots)
 
 
-def _fill_heap(vertices, vertex_quadrics, edge_slot, edge_quadrics, heap_cost, heap_ids,
-               heap_size, edges, exact, rank_tolerance):
+def _fill_heap(vertices, vertex_quadrics, edge_slot, edge_quadrics, heap_entries, heap_size,
+               edges, exact, rank_tolerance):
     """Put every edge in the heap with its cost, then order it once (O(E))."""
     quadric = np.zeros(QUADRIC_SIZE)
     position = np.zeros(3)
+    scratch = np.zeros(1)
     for i in range(edges.shape[0]):
         a, b = edges[i, 0], edges[i, 1]
-        heap_cost[i] = edge_cost(vertices, vertex_quadrics, edge_slot, edge_quadrics, a, b,
-                                 exact, rank_tolerance, quadric, position)
-        heap_ids[i, 0] = a
-        heap_ids[i, 1] = b
-        heap_ids[i, 2] = 0
-        heap_ids[i, 3] = 0
+        cost = edge_cost(vertices, vertex_quadrics, edge_slot, edge_quadrics, a, b, exact,
+                         rank_tolerance, quadric, position)
+        heap_ops.put(heap_entries, i, heap_ops.cost_key(cost, scratch), a, b, 0, 0)
     heap_size[0] = edges.shape[0]
-    heap_ops.heapify(heap_cost, heap_ids, heap_size)
+    heap_ops.heapify(heap_entries, heap_size)
 
 
 fill_heap = numba.njit(cache=True)(_fill_heap)

@@ -32,7 +32,14 @@ from ._kernels.contract import (
 from ._kernels.heap import grow_heap, make_heap
 from ._kernels.link import make_neighbourhood
 from ._kernels.quadrics import QUADRIC_SIZE, fill_face_quadrics
-from ._kernels.setup import fill_border_quadrics, fill_heap, make_edge_slots
+from ._kernels.runs import reverse_runs
+from ._kernels.setup import (
+    fill_border_quadrics,
+    fill_heap,
+    find_edges,
+    make_edge_slots,
+    sum_quadrics,
+)
 from .options import ERROR_MODE_CODES, WEIGHTING_CODES, BuildOptions
 from .prepare import prepare_mesh
 from .progressive import ProgressiveMesh
@@ -64,24 +71,20 @@ class ContractionRun(NamedTuple):
 def unique_edges(faces: np.ndarray, n_vertices: int):
     """Unique undirected edges of ``faces``.
 
-    Returns (edges (E, 2) int32 with edges[:, 0] < edges[:, 1], face_edge (m, 3) int64 the
-    edge index of each face side (corner k to k+1), edge_face_count (E,) int64).
+    Returns (edges (E, 2) int32 in (low, high) order with edges[:, 0] < edges[:, 1],
+    face_edge (m, 3) int32 the edge of each face side (corner k to k+1),
+    edge_face_count (E,) int32, edge_side (E,) int64 the last side 3 f + k on each edge).
     """
-    sides = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
-    lo = np.minimum(sides[:, 0], sides[:, 1]).astype(np.int64)
-    hi = np.maximum(sides[:, 0], sides[:, 1]).astype(np.int64)
-    keys, face_edge, counts = np.unique(lo * n_vertices + hi, return_inverse=True,
-                                        return_counts=True)
-    edges = np.stack([keys // n_vertices, keys % n_vertices], axis=1).astype(np.int32)
-    return edges, face_edge.reshape(-1, 3), counts
-
-
-def _scatter_add(rows: np.ndarray, index: np.ndarray, size: int) -> np.ndarray:
-    """out[i] = sum of rows[j] with index[j] == i; rows (k, 10), deterministic order."""
-    out = np.zeros((size, rows.shape[1]))
-    for d in range(rows.shape[1]):
-        out[:, d] = np.bincount(index, weights=rows[:, d], minlength=size)
-    return out
+    faces = np.ascontiguousarray(faces, np.int32)
+    m = faces.shape[0]
+    face_edge = np.zeros((m, 3), np.int32)
+    edges = np.zeros((3 * m, 2), np.int32)
+    edge_face_count = np.zeros(3 * m, np.int32)
+    edge_side = np.zeros(3 * m, np.int64)
+    n_edges = find_edges(faces, n_vertices, face_edge, edges, edge_face_count, edge_side)
+    # Copies, so the (3m,) upper-bound arrays are freed.
+    return (edges[:n_edges].copy(), face_edge, edge_face_count[:n_edges].copy(),
+            edge_side[:n_edges].copy())
 
 
 def _kernel_params(options: BuildOptions) -> np.ndarray:
@@ -100,12 +103,10 @@ def _initial_complex(vertices: np.ndarray, faces: np.ndarray, options: BuildOpti
     face_normals = np.zeros((m, 3))
     fill_face_quadrics(vertices, faces, weighting, face_quadrics, face_normals)
 
-    edges, face_edge, edge_face_count = unique_edges(faces, n)
+    edges, face_edge, edge_face_count, edge_side = unique_edges(faces, n)
     border = np.flatnonzero(edge_face_count == 1)
     # The one face of each border edge, and the side's direction in that face.
-    side_of_edge = np.full(edges.shape[0], -1, np.int64)
-    side_of_edge[face_edge.reshape(-1)] = np.arange(3 * m)
-    border_sides = side_of_edge[border]
+    border_sides = edge_side[border]
     border_faces = border_sides // 3
     border_from = faces[border_faces, border_sides % 3]
     border_to = faces[border_faces, (border_sides + 1) % 3]
@@ -114,21 +115,11 @@ def _initial_complex(vertices: np.ndarray, faces: np.ndarray, options: BuildOpti
     fill_border_quadrics(vertices, border_edges, border_faces, face_normals, weighting,
                          float(options.boundary_weight), border_quadrics)
 
-    corner_rows = np.repeat(face_quadrics, 3, axis=0)
-    vertex_quadrics = _scatter_add(
-        np.concatenate([corner_rows, border_quadrics, border_quadrics]),
-        np.concatenate([faces.reshape(-1), border_edges[:, 0], border_edges[:, 1]]),
-        n,
-    )
     exact = options.error_mode == "exact"
-    if exact:
-        edge_quadrics = _scatter_add(
-            np.concatenate([corner_rows, border_quadrics]),
-            np.concatenate([face_edge.reshape(-1), border]),
-            edges.shape[0],
-        )
-    else:
-        edge_quadrics = np.zeros((0, QUADRIC_SIZE))
+    vertex_quadrics = np.zeros((n, QUADRIC_SIZE))
+    edge_quadrics = np.zeros((edges.shape[0] if exact else 0, QUADRIC_SIZE))
+    sum_quadrics(faces, face_quadrics, face_edge, border, border_edges, border_quadrics,
+                 vertex_quadrics, edge_quadrics, exact)
     edge_slot = make_edge_slots(edges if exact else edges[:0], n)
     cx = Complex(
         vertices=np.array(vertices, np.float64, copy=True),
@@ -214,7 +205,6 @@ def contract_greedily(
     return ContractionRun(record, cx, done)
 
 
-
 def assemble_progressive_mesh(run: ContractionRun, metadata: dict) -> ProgressiveMesh:
     """Reverse the contraction record into a base mesh plus vertex splits.
 
@@ -227,28 +217,23 @@ def assemble_progressive_mesh(run: ContractionRun, metadata: dict) -> Progressiv
     level_of_slot = _level_of_slot(run)
 
     killed_end = record.killed_end[:j_count]
-    killed_start = np.concatenate([[0], killed_end[:-1]])
+    n_killed = int(killed_end[-1]) if j_count else 0
     base_faces = np.flatnonzero(cx.face_alive)
     # Faces in order of appearance: the base, then those killed by the last contraction
     # (born at split 0), and so on back to the first.
-    order = [base_faces] + [
-        record.killed[killed_start[j] : killed_end[j]] for j in range(j_count - 1, -1, -1)
-    ]
-    face_order = np.concatenate(order).astype(np.int64)
+    face_order = np.zeros(base_faces.size + n_killed, np.int64)
+    face_order[: base_faces.size] = base_faces
+    reverse_runs(record.killed, killed_end, j_count, face_order[base_faces.size :])
     level_of_face = np.full(cx.faces.shape[0], -1, np.int64)
     level_of_face[face_order] = np.arange(face_order.size)
-    born_per_split = (killed_end - killed_start)[::-1]
+    born_per_split = np.diff(killed_end, prepend=0)[::-1]
     level_faces = np.concatenate([[base_faces.size], base_faces.size + np.cumsum(born_per_split)])
 
     relabel_end = record.relabel_end[:j_count]
-    relabel_start = np.concatenate([[0], relabel_end[:-1]])
-    relabel_runs = [
-        record.relabel[relabel_start[j] : relabel_end[j]] for j in range(j_count - 1, -1, -1)
-    ]
-    relabel_faces = (
-        level_of_face[np.concatenate(relabel_runs)] if relabel_runs else np.zeros(0, np.int64)
-    )
-    relabel_offsets = np.concatenate([[0], np.cumsum((relabel_end - relabel_start)[::-1])])
+    relabelled = np.zeros(int(relabel_end[-1]) if j_count else 0, np.int32)
+    reverse_runs(record.relabel, relabel_end, j_count, relabelled)
+    relabel_faces = level_of_face[relabelled]
+    relabel_offsets = np.concatenate([[0], np.cumsum(np.diff(relabel_end, prepend=0)[::-1])])
 
     reversed_j = np.arange(j_count - 1, -1, -1)
     split_positions = np.stack(

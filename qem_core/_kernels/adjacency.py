@@ -20,15 +20,32 @@ class FaceLists(NamedTuple):
 
 
 def make_face_lists(faces: np.ndarray, n_vertices: int, capacity: int) -> FaceLists:
-    """CSR vertex -> incident faces, in a pool of ``capacity`` (>= 3 * n_faces) slots."""
-    corners = faces.reshape(-1)
-    order = np.argsort(corners, kind="stable")
-    count = np.bincount(corners, minlength=n_vertices).astype(np.int32)
+    """CSR vertex -> incident faces (each run in increasing face order), in a pool of
+    ``capacity`` (>= 3 * n_faces) slots."""
+    count = np.zeros(n_vertices, np.int32)
     start = np.zeros(n_vertices, np.int64)
-    np.cumsum(count[:-1], out=start[1:])
     pool = np.full(capacity, -1, np.int32)
-    pool[: corners.size] = (order // 3).astype(np.int32)
-    return FaceLists(start, count, pool, np.array([corners.size], np.int64))
+    fill_face_lists(faces, start, count, pool)
+    return FaceLists(start, count, pool, np.array([faces.size], np.int64))
+
+
+def _fill_face_lists(faces, start, count, pool):
+    """Counting sort of the corners by vertex (O(m); a stable argsort cost 0.15 s on 871k
+    faces). start, count : zeros, out; pool : (>= 3 m,), out."""
+    for f in range(faces.shape[0]):
+        for k in range(3):
+            count[faces[f, k]] += 1
+    for v in range(1, start.shape[0]):
+        start[v] = start[v - 1] + count[v - 1]
+    fill = start.copy()
+    for f in range(faces.shape[0]):
+        for k in range(3):
+            v = faces[f, k]
+            pool[fill[v]] = f
+            fill[v] += 1
+
+
+fill_face_lists = numba.njit(cache=True)(_fill_face_lists)
 
 
 def _compact(lists, alive):

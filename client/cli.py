@@ -1,5 +1,9 @@
 """The ``qem`` command.
 
+    qem build IN -o OUT.qpm        simplify once, save the progressive mesh (progress bar)
+    qem lod FILE.qpm -n N -o OUT   one level as PLY, OBJ, GLB or msgpack
+    qem simplify IN -n N -o OUT    build and extract in one go
+    qem info FILE.qpm              counts, error curve, sizes
     qem serve [--host H] [--port P] [--data-dir D] [--demo]    run the service
     qem upload IN                  upload a mesh, show upload and build progress, print id
     qem get ID -n N -o OUT         fetch the mesh at N vertices (format from OUT's suffix)
@@ -18,7 +22,6 @@ Exit status: 0 success, 1 the server refused the request or the build failed, 2 
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
 import sys
@@ -26,6 +29,21 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from .console import (
+    EXIT_FAILED,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    EXIT_TIMEOUT,
+    EXIT_UNREACHABLE,
+    EXIT_USAGE,
+    OUTPUT_FORMATS,
+    Bar,
+    CliError,
+    format_of,
+    note,
+    print_json,
+    write_atomically,
+)
 from .http import (
     DEFAULT_SERVER,
     QemBuildFailed,
@@ -34,64 +52,13 @@ from .http import (
     QemConnectionError,
     QemHTTPError,
 )
+from .local_commands import add_build, add_info, add_lod, add_simplify
 
 __all__ = ["SUBCOMMANDS", "build_parser", "main"]
 
-EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_UNREACHABLE, EXIT_TIMEOUT = 0, 1, 2, 3, 4
-EXIT_INTERRUPTED = 130
-
-# Output suffix -> lod format.
-_FORMATS = {".ply": "ply", ".obj": "obj", ".glb": "glb", ".msgpack": "msgpack", ".mpk": "msgpack"}
 _DEMO_MESHES = ("server/demo/spot.obj", "examples/spot.obj")
 
 log = logging.getLogger("qem")
-
-
-class CliError(Exception):
-    """A message for the user and an exit status."""
-
-    def __init__(self, message: str, status: int = EXIT_FAILED) -> None:
-        super().__init__(message)
-        self.status = status
-
-
-# -- output helpers ------------------------------------------------------------------------
-
-
-def _print_json(value: Any) -> None:
-    json.dump(value, sys.stdout, indent=2)
-    sys.stdout.write("\n")
-
-
-def _note(message: str) -> None:
-    print(message, file=sys.stderr)
-
-
-class _Bar:
-    """A one-line progress bar on stderr, drawn only on a terminal."""
-
-    def __init__(self, label: str, enabled: bool) -> None:
-        self.label = label
-        self.enabled = enabled and sys.stderr.isatty()
-        self._last = -1
-
-    def show(self, fraction: float, suffix: str = "") -> None:
-        if not self.enabled:
-            return
-        percent = int(100 * min(1.0, max(0.0, fraction)))
-        if percent == self._last and not suffix:
-            return
-        self._last = percent
-        filled = percent * 30 // 100
-        sys.stderr.write(
-            f"\r{self.label:<7} [{'#' * filled}{'.' * (30 - filled)}] {percent:3d}% {suffix}\033[K"
-        )
-        sys.stderr.flush()
-
-    def done(self) -> None:
-        if self.enabled and self._last >= 0:
-            sys.stderr.write("\n")
-            sys.stderr.flush()
 
 
 def _client(args: argparse.Namespace) -> QemClient:
@@ -220,7 +187,7 @@ def cmd_upload(args: argparse.Namespace) -> int:
     options = _parse_options(args.option)
     show = not args.json
     with _client(args) as qem:
-        bar = _Bar("upload", show)
+        bar = Bar("upload", show)
         mesh_id = qem.upload(
             args.input,
             name=args.name,
@@ -229,11 +196,11 @@ def cmd_upload(args: argparse.Namespace) -> int:
         )
         bar.done()
         if show:
-            _note(f"uploaded {args.input} as {mesh_id}")
+            note(f"uploaded {args.input} as {mesh_id}")
         if args.no_wait:
             info = qem.info(mesh_id)
         else:
-            build = _Bar("build", show)
+            build = Bar("build", show)
             try:
                 info = qem.wait_ready(
                     mesh_id,
@@ -243,12 +210,12 @@ def cmd_upload(args: argparse.Namespace) -> int:
             finally:
                 build.done()
             if show:
-                _note(
+                note(
                     f"ready: {info['vertices']} vertices, {info['faces']} faces, "
                     f"base mesh {info['min_vertices']} vertices"
                 )
     if args.json:
-        _print_json(info)
+        print_json(info)
     else:
         print(mesh_id)
     return EXIT_OK
@@ -268,7 +235,7 @@ def add_get(subparsers: argparse._SubParsersAction) -> None:
         required=True,
         help="output file; its suffix gives the format (.ply .obj .glb .msgpack); - = stdout",
     )
-    parser.add_argument("--format", choices=sorted(set(_FORMATS.values())))
+    parser.add_argument("--format", choices=sorted(set(OUTPUT_FORMATS.values())))
     parser.set_defaults(run=cmd_get)
 
 
@@ -276,27 +243,11 @@ def cmd_get(args: argparse.Namespace) -> int:
     if args.vertices is not None and args.vertices < 1:
         raise CliError(f"-n {args.vertices}: the vertex count must be at least 1", EXIT_USAGE)
     to_stdout = args.output == "-"
-    fmt = args.format
-    if fmt is None:
-        suffix = "" if to_stdout else Path(args.output).suffix.lower()
-        if suffix and suffix not in _FORMATS:
-            raise CliError(
-                f"cannot tell the format from {args.output!r}; use one of "
-                f"{', '.join(_FORMATS)} or --format",
-                EXIT_USAGE,
-            )
-        fmt = _FORMATS.get(suffix, "ply")
+    fmt = format_of(args.output, args.format)
     with _client(args) as qem:
         lod = qem.fetch_lod(args.id, args.vertices, fmt)
     assert lod is not None
-    if to_stdout:
-        sys.stdout.buffer.write(lod.content)
-        sys.stdout.buffer.flush()
-    else:
-        output = Path(args.output)
-        partial = output.with_name(output.name + ".part")
-        partial.write_bytes(lod.content)
-        partial.replace(output)
+    write_atomically(args.output, lod.content)
     summary = {
         "id": args.id,
         "path": args.output,
@@ -307,9 +258,9 @@ def cmd_get(args: argparse.Namespace) -> int:
         "error": lod.error,
     }
     if args.json and not to_stdout:
-        _print_json(summary)
+        print_json(summary)
     else:
-        _note(
+        note(
             f"wrote {args.output}: {lod.n_vertices} vertices, {lod.n_faces} faces "
             f"({len(lod.content)} bytes, {fmt})"
         )
@@ -325,10 +276,10 @@ def cmd_ls(args: argparse.Namespace) -> int:
     with _client(args) as qem:
         meshes = qem.list()
     if args.json:
-        _print_json(meshes)
+        print_json(meshes)
         return EXIT_OK
     if not meshes:
-        _note("no meshes on this server")
+        note("no meshes on this server")
         return EXIT_OK
     rows = [("ID", "STATUS", "VERTICES", "FACES", "BASE", "NAME")]
     for mesh in meshes:
@@ -368,15 +319,19 @@ def cmd_rm(args: argparse.Namespace) -> int:
             qem.delete(mesh_id)
             deleted.append(mesh_id)
             if not args.json:
-                _note(f"deleted {mesh_id}")
+                note(f"deleted {mesh_id}")
     if args.json:
-        _print_json({"deleted": deleted})
+        print_json({"deleted": deleted})
     return EXIT_OK
 
 
 # -- entry point -----------------------------------------------------------------------------
 
 SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
+    add_build,
+    add_lod,
+    add_simplify,
+    add_info,
     add_serve,
     add_upload,
     add_get,
@@ -403,25 +358,25 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return args.run(args)
     except CliError as exc:
-        _note(f"qem {args.command}: {exc}")
+        note(f"qem {args.command}: {exc}")
         return exc.status
     except QemConnectionError as exc:
-        _note(f"qem {args.command}: {exc}")
+        note(f"qem {args.command}: {exc}")
         return EXIT_UNREACHABLE
     except QemHTTPError as exc:
-        _note(f"qem {args.command}: {_describe_problem(exc)}")
+        note(f"qem {args.command}: {_describe_problem(exc)}")
         return EXIT_FAILED
     except QemBuildFailed as exc:
-        _note(f"qem {args.command}: {exc}")
+        note(f"qem {args.command}: {exc}")
         return EXIT_FAILED
     except TimeoutError as exc:
-        _note(f"qem {args.command}: {exc}")
+        note(f"qem {args.command}: {exc}")
         return EXIT_TIMEOUT
     except QemClientError as exc:
-        _note(f"qem {args.command}: {exc}")
+        note(f"qem {args.command}: {exc}")
         return EXIT_FAILED
     except KeyboardInterrupt:
-        _note("interrupted")
+        note("interrupted")
         return EXIT_INTERRUPTED
 
 

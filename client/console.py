@@ -1,0 +1,111 @@
+"""What every ``qem`` subcommand shares: exit statuses, the user-facing error, output
+helpers and the progress bar."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "EXIT_FAILED",
+    "EXIT_INTERRUPTED",
+    "EXIT_OK",
+    "EXIT_TIMEOUT",
+    "EXIT_UNREACHABLE",
+    "EXIT_USAGE",
+    "OUTPUT_FORMATS",
+    "Bar",
+    "CliError",
+    "format_of",
+    "note",
+    "print_json",
+    "write_atomically",
+]
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_UNREACHABLE, EXIT_TIMEOUT = 0, 1, 2, 3, 4
+EXIT_INTERRUPTED = 130
+
+# Output suffix -> mesh format.
+OUTPUT_FORMATS = {
+    ".ply": "ply",
+    ".obj": "obj",
+    ".glb": "glb",
+    ".msgpack": "msgpack",
+    ".mpk": "msgpack",
+}
+
+
+class CliError(Exception):
+    """A message for the user and an exit status."""
+
+    def __init__(self, message: str, status: int = EXIT_FAILED) -> None:
+        super().__init__(message)
+        self.status = status
+
+
+def format_of(output: str, given: str | None, default: str = "ply") -> str:
+    """The mesh format to write: `given`, else the suffix of `output` ("-": default)."""
+    if given is not None:
+        return given
+    suffix = "" if output == "-" else Path(output).suffix.lower()
+    if suffix and suffix not in OUTPUT_FORMATS:
+        raise CliError(
+            f"cannot tell the format from {output!r}; use one of "
+            f"{', '.join(OUTPUT_FORMATS)} or --format",
+            EXIT_USAGE,
+        )
+    return OUTPUT_FORMATS.get(suffix, default)
+
+
+def write_atomically(output: str, content: bytes) -> None:
+    """Write `content` to the path `output` (or stdout for "-"), never leaving half a file."""
+    if output == "-":
+        sys.stdout.buffer.write(content)
+        sys.stdout.buffer.flush()
+        return
+    path = Path(output)
+    partial = path.with_name(path.name + ".part")
+    try:
+        partial.write_bytes(content)
+        partial.replace(path)
+    except OSError as exc:
+        partial.unlink(missing_ok=True)
+        raise CliError(f"cannot write {output}: {exc.strerror or exc}") from None
+
+
+def print_json(value: Any) -> None:
+    json.dump(value, sys.stdout, indent=2)
+    sys.stdout.write("\n")
+
+
+def note(message: str) -> None:
+    print(message, file=sys.stderr)
+
+
+class Bar:
+    """A one-line progress bar on stderr, drawn only on a terminal."""
+
+    def __init__(self, label: str, enabled: bool) -> None:
+        self.label = label
+        self.enabled = enabled and sys.stderr.isatty()
+        self._last = -1
+
+    def show(self, fraction: float, suffix: str = "") -> None:
+        if not self.enabled:
+            return
+        percent = int(100 * min(1.0, max(0.0, fraction)))
+        if percent == self._last and not suffix:
+            return
+        self._last = percent
+        filled = percent * 30 // 100
+        sys.stderr.write(
+            f"\r{self.label:<7} [{'#' * filled}{'.' * (30 - filled)}] {percent:3d}% {suffix}\033[K"
+        )
+        sys.stderr.flush()
+
+    def done(self) -> None:
+        if self.enabled and self._last >= 0:
+            sys.stderr.write("\n")
+            sys.stderr.flush()

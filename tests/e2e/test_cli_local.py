@@ -1,0 +1,115 @@
+"""The local ``qem`` commands (build, info, lod, simplify) run as a user runs them: a
+subprocess, files on disk, exit statuses and messages."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import qem_core
+from tests.tiny_meshes import icosphere
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def qem(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "client.cli", *args],
+        cwd=cwd,
+        env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin"},
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+@pytest.fixture(scope="module")
+def sphere_file(tmp_path_factory) -> Path:
+    vertices, faces = icosphere(3, jitter=0.05, seed=3)  # 642 vertices
+    path = tmp_path_factory.mktemp("cli") / "sphere.ply"
+    path.write_bytes(qem_core.encode_mesh(vertices, faces, "ply"))
+    return path
+
+
+@pytest.fixture(scope="module")
+def built(sphere_file) -> Path:
+    result = qem("build", str(sphere_file), "-o", "sphere.qpm", cwd=sphere_file.parent)
+    assert result.returncode == 0, result.stderr
+    assert "wrote sphere.qpm" in result.stderr
+    return sphere_file.parent / "sphere.qpm"
+
+
+def test_build_writes_a_loadable_qpm(built, sphere_file):
+    pm = qem_core.load(built)
+    mesh = qem_core.load_mesh(sphere_file)
+    assert pm.n_full == mesh.n_vertices
+    assert pm.lod(pm.n_full)[1].shape == mesh.faces.shape
+
+
+def test_build_is_deterministic(built, sphere_file):
+    again = qem("build", str(sphere_file), "-o", "again.qpm", cwd=sphere_file.parent)
+    assert again.returncode == 0, again.stderr
+    assert (sphere_file.parent / "again.qpm").read_bytes() == built.read_bytes()
+
+
+def test_info_json(built):
+    result = qem("info", str(built), "--json", cwd=built.parent)
+    assert result.returncode == 0, result.stderr
+    info = json.loads(result.stdout)
+    pm = qem_core.load(built)
+    assert (info["vertices"], info["min_vertices"]) == (pm.n_full, pm.n_base)
+    assert info["bytes"] == built.stat().st_size
+    errors = [point["error"] for point in info["error_curve"]]
+    assert errors == sorted(errors)  # finer levels never have a larger error
+    assert info["options"]["weighting"] == "area"
+
+
+@pytest.mark.parametrize("suffix", [".ply", ".obj", ".glb", ".msgpack"])
+def test_lod_writes_exactly_n_vertices(built, suffix):
+    output = built.parent / f"level{suffix}"
+    result = qem("lod", str(built), "-n", "100", "-o", output.name, "--json", cwd=built.parent)
+    assert result.returncode == 0, result.stderr
+    summary = json.loads(result.stdout)
+    mesh = qem_core.load_mesh(output)
+    vertices, faces = qem_core.load(built).lod(100)
+    assert summary["vertices"] == mesh.n_vertices == 100
+    assert np.array_equal(mesh.faces, faces)
+
+
+def test_lod_reports_clamping(built):
+    result = qem("lod", str(built), "-n", "1", "-o", "tiny.obj", cwd=built.parent)
+    assert result.returncode == 0, result.stderr
+    assert "(asked 1)" in result.stderr
+
+
+def test_simplify_in_one_go(sphere_file):
+    result = qem("simplify", str(sphere_file), "-n", "50", "-o", "s.glb", cwd=sphere_file.parent)
+    assert result.returncode == 0, result.stderr
+    assert qem_core.load_mesh(sphere_file.parent / "s.glb").n_vertices == 50
+
+
+@pytest.mark.parametrize(
+    ("args", "status", "words"),
+    [
+        (["lod", "missing.qpm", "-n", "5", "-o", "x.ply"], 2, "no such file"),
+        (["lod", "sphere.qpm", "-n", "5", "-o", "x.xyz"], 2, "cannot tell the format"),
+        (["lod", "sphere.qpm", "-n", "0", "-o", "x.ply"], 2, "at least 1"),
+        (["info", "truncated.qpm"], 1, "damaged or truncated"),
+        (["build", "sphere.ply", "-o", "x.qpm", "--option", "weighting=foo"], 2, "weighting"),
+        (["build", "sphere.ply", "-o", "x.qpm", "--option", "colour=red"], 2, "unknown build"),
+        (["build", "garbage.ply", "-o", "x.qpm"], 1, "garbage.ply"),
+    ],
+)
+def test_bad_input_gives_a_message_and_a_status(built, args, status, words):
+    (built.parent / "truncated.qpm").write_bytes(built.read_bytes()[:200])
+    (built.parent / "garbage.ply").write_bytes(b"ply\nformat nonsense\n")
+    result = qem(*args, cwd=built.parent)
+    assert result.returncode == status, result.stderr
+    assert words in result.stderr
+    assert "Traceback" not in result.stderr
+    assert not (built.parent / "x.qpm").exists() and not (built.parent / "x.ply").exists()

@@ -5,8 +5,12 @@ from __future__ import annotations
 
 import json
 import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
+
+from qem_core.errors import QemError
 
 __all__ = [
     "EXIT_FAILED",
@@ -21,6 +25,7 @@ __all__ = [
     "format_of",
     "note",
     "print_json",
+    "reading",
     "write_atomically",
 ]
 
@@ -59,20 +64,39 @@ def format_of(output: str, given: str | None, default: str = "ply") -> str:
     return OUTPUT_FORMATS.get(suffix, default)
 
 
-def write_atomically(output: str, content: bytes) -> None:
-    """Write `content` to the path `output` (or stdout for "-"), never leaving half a file."""
+def write_atomically(output: str, content: bytes | Callable[[Path], None]) -> None:
+    """Write to the path `output` (or stdout for "-"), never leaving half a file.
+
+    content : the bytes, or a function that writes the file at the path it is given."""
     if output == "-":
+        assert isinstance(content, bytes)
         sys.stdout.buffer.write(content)
         sys.stdout.buffer.flush()
         return
     path = Path(output)
     partial = path.with_name(path.name + ".part")
     try:
-        partial.write_bytes(content)
+        if isinstance(content, bytes):
+            partial.write_bytes(content)
+        else:
+            content(partial)
         partial.replace(path)
     except OSError as exc:
         partial.unlink(missing_ok=True)
         raise CliError(f"cannot write {output}: {exc.strerror or exc}") from None
+
+
+@contextmanager
+def reading(path: str) -> Iterator[None]:
+    """Turn the errors of reading the file `path` into messages for the user."""
+    try:
+        yield
+    except FileNotFoundError:
+        raise CliError(f"{path}: no such file", EXIT_USAGE) from None
+    except IsADirectoryError:
+        raise CliError(f"{path} is a directory", EXIT_USAGE) from None
+    except QemError as exc:
+        raise CliError(f"{path}: {exc}") from None
 
 
 def print_json(value: Any) -> None:

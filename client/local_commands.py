@@ -24,6 +24,7 @@ from .console import (
     format_of,
     note,
     print_json,
+    reading,
     write_atomically,
 )
 
@@ -81,34 +82,21 @@ def _build(args: argparse.Namespace) -> tuple[qem_core.ProgressiveMesh, float]:
     """The progressive mesh of args.input and the seconds the build took (kept out of the
     file, so the same input always gives the same bytes)."""
     options = _parse_options(args.option)
-    try:
+    with reading(args.input):
         mesh = qem_core.load_mesh(args.input)
-    except FileNotFoundError:
-        raise CliError(f"{args.input}: no such file", EXIT_USAGE) from None
-    except IsADirectoryError:
-        raise CliError(f"{args.input} is a directory", EXIT_USAGE) from None
-    except qem_core.QemError as exc:
-        raise CliError(f"{args.input}: {exc}") from None
     bar = Bar("build", not args.quiet)
     started = time.perf_counter()
     try:
-        pm = qem_core.build_mesh(mesh, options, progress=bar.show)
-    except qem_core.QemError as exc:
-        raise CliError(f"{args.input}: {exc}") from None
+        with reading(args.input):
+            pm = qem_core.build_mesh(mesh, options, progress=bar.show)
     finally:
         bar.done()
     return pm, time.perf_counter() - started
 
 
 def _load_progressive(path: str) -> qem_core.ProgressiveMesh:
-    try:
+    with reading(path):
         return qem_core.load(path)
-    except FileNotFoundError:
-        raise CliError(f"{path}: no such file", EXIT_USAGE) from None
-    except IsADirectoryError:
-        raise CliError(f"{path} is a directory", EXIT_USAGE) from None
-    except qem_core.QemError as exc:
-        raise CliError(f"{path}: {exc}") from None
 
 
 def _write_level(pm: qem_core.ProgressiveMesh, n: int, output: str, fmt: str) -> dict:
@@ -155,15 +143,11 @@ def add_build(subparsers: argparse._SubParsersAction) -> None:
 
 
 def cmd_build(args: argparse.Namespace) -> int:
+    if args.output == "-":
+        raise CliError("-o -: a .qpm file cannot go to stdout; give a file name", EXIT_USAGE)
     pm, seconds = _build(args)
     output = Path(args.output)
-    partial = output.with_name(output.name + ".part")
-    try:
-        pm.save(partial)
-        partial.replace(output)
-    except OSError as exc:
-        partial.unlink(missing_ok=True)
-        raise CliError(f"cannot write {args.output}: {exc.strerror or exc}") from None
+    write_atomically(args.output, pm.save)
     summary = _summary(pm, output) | {"build_seconds": round(seconds, 3)}
     if args.json:
         print_json(summary)

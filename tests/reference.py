@@ -118,3 +118,90 @@ def _plane(n, d, w) -> np.ndarray:
 def evaluate_quadric(q, v) -> float:
     a = np.array([[q[0], q[1], q[2]], [q[1], q[3], q[4]], [q[2], q[4], q[5]]])
     return float(v @ a @ v + 2 * q[6:9] @ v + q[9])
+
+
+# -- Exact comparisons and vectorised topology checks --------------------------------
+# The checks above walk Python lists and are too slow for the shared meshes (up to 270k
+# faces); the ones below do the same with numpy sorts. test_shared_meshes.py checks that
+# both kinds agree on the tiny meshes.
+
+
+def canonical_faces(faces) -> np.ndarray:
+    """(m, 3) int64: each face rotated so its smallest index comes first (orientation
+    kept), rows sorted, so two face lists compare equal as multisets of oriented faces."""
+    faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    first = np.argmin(faces, axis=1)
+    rows = np.arange(faces.shape[0])[:, None]
+    rotated = faces[rows, (first[:, None] + np.arange(3)) % 3]
+    return rotated[np.lexsort(rotated.T[::-1])]
+
+
+def exact_triangle_set(vertices, faces) -> Counter:
+    """`triangle_set` without rounding: two meshes are equal only when every corner
+    position is equal to the last bit."""
+    out = Counter()
+    for tri in np.asarray(vertices)[np.asarray(faces)].tolist():
+        rotations = [tuple(map(tuple, tri[k:] + tri[:k])) for k in range(3)]
+        out[min(rotations)] += 1
+    return out
+
+
+def undirected_edges(faces) -> tuple[np.ndarray, np.ndarray]:
+    """(unique (E, 2) int64 low-high edges, (E,) how many faces use each)."""
+    faces = np.asarray(faces, np.int64)
+    sides = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
+    return np.unique(np.sort(sides, axis=1), axis=0, return_counts=True)
+
+
+def fast_euler_characteristic(faces) -> int:
+    edges, _ = undirected_edges(faces)
+    return len(np.unique(faces)) - len(edges) + len(faces)
+
+
+def _cycle_count(successor: np.ndarray) -> int:
+    """Number of cycles of a permutation, by pointer doubling (O(n log n))."""
+    label = np.arange(successor.size)
+    jump = successor.copy()
+    for _ in range(max(1, int(np.ceil(np.log2(max(successor.size, 2)))) + 1)):
+        label = np.minimum(label, label[jump])
+        jump = jump[jump]
+    return int(np.count_nonzero(label == np.arange(successor.size)))
+
+
+def fast_is_closed_manifold(faces) -> bool:
+    """Vectorised `is_closed_manifold`, orientation included: every directed edge once
+    and its reverse once, and the faces around each vertex one fan.
+
+    The fan test follows corners: the corner of vertex v in face f is followed by the
+    corner of v in the face across f's edge into v. That is a permutation of corners;
+    each vertex is manifold when its corners make one cycle, so the mesh is when the
+    permutation has as many cycles as there are vertices.
+    """
+    faces = np.asarray(faces, np.int64)
+    m = faces.shape[0]
+    tail = faces.reshape(-1)
+    head = np.roll(faces, -1, axis=1).reshape(-1)
+    n = int(faces.max()) + 1
+    key = tail * n + head
+    order = np.argsort(key)
+    sorted_key = key[order]
+    if np.any(sorted_key[1:] == sorted_key[:-1]):
+        return False  # a directed edge twice: inconsistent orientation or non-manifold
+    reverse = head * n + tail
+    position = np.minimum(np.searchsorted(sorted_key, reverse), key.size - 1)
+    if not np.array_equal(sorted_key[position], reverse):
+        return False  # an edge without its reverse: a border
+    twin = order[position]  # side 3 f + k -> the side that runs the other way
+    # Corner c = 3 f + k sits at faces[f, k]; the side into it is 3 f + (k - 1).
+    corner = np.arange(3 * m)
+    side_into = 3 * (corner // 3) + (corner % 3 + 2) % 3
+    # The reverse of the side into v leaves v: its side index is v's corner there.
+    successor = twin[side_into]
+    return _cycle_count(successor) == len(np.unique(faces))
+
+
+def fast_boundary_loops(faces) -> int:
+    """Vectorised `boundary_loops`: border edges found with numpy, joined in Python
+    (borders are short)."""
+    edges, counts = undirected_edges(faces)
+    return _count_classes(map(tuple, edges[counts == 1].tolist()))

@@ -81,3 +81,51 @@ def icosphere(subdivisions: int = 1, jitter: float = 0.0, seed: int = 0):
         rng = np.random.default_rng(seed)
         vertices *= 1 + jitter * rng.uniform(-1, 1, size=(len(vertices), 1))
     return vertices, np.array(faces)
+
+
+# The unit cube, closed: OPEN_BOX and its top face z=1.
+CUBE = (_CUBE_V, np.concatenate([OPEN_BOX[1], [[4, 5, 7], [4, 7, 6]]]))
+
+#      3
+#     /|\        a fin: three triangles on the edge 0-1, which is non-manifold
+#    / | \       (2 and 3 on either side in the plane z = 0, 4 above it)
+#   2--0--1 ... 4
+FIN = (
+    np.array([[0, 0, 0], [1, 0, 0], [0.5, -1, 0], [0.5, 1, 0], [0.5, 0, 1]], float),
+    np.array([[0, 1, 3], [1, 0, 2], [0, 1, 4]]),
+)
+
+#   3       1
+#   | \   / |    a bowtie: two triangles that share only vertex 0
+#   |   0   |
+#   | /   \ |
+#   4       2
+BOWTIE = (
+    np.array([[0, 0, 0], [1, 1, 0], [1, -1, 0], [-1, 1, 0], [-1, -1, 0]], float),
+    np.array([[0, 2, 1], [0, 3, 4]]),
+)
+
+
+def soup(vertices, faces):
+    """The mesh as an STL-like triangle soup: three vertex copies per face."""
+    vertices, faces = np.asarray(vertices), np.asarray(faces)
+    return vertices[faces.reshape(-1)].copy(), np.arange(faces.size).reshape(-1, 3)
+
+
+def perforated_icosphere(
+    subdivisions: int = 2, jitter: float = 0.05, holes: int = 3, seed: int = 0
+):
+    """A jittered icosphere with `holes` randomly chosen faces removed (an open mesh;
+    holes that share a vertex make a pinched border, which is allowed input)."""
+    vertices, faces = icosphere(subdivisions, jitter, seed)
+    rng = np.random.default_rng(seed)
+    keep = np.ones(len(faces), bool)
+    keep[rng.choice(len(faces), size=holes, replace=False)] = False
+    return vertices, faces[keep]
+
+
+def bumpy_grid(n: int = 6, amplitude: float = 0.3, seed: int = 0):
+    """`grid(n)` with random heights, so no two contractions cost the same."""
+    vertices, faces = grid(n)
+    vertices[:, 2] = amplitude * np.random.default_rng(seed).uniform(-1, 1, n * n)
+    return vertices, faces

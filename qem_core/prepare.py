@@ -48,13 +48,15 @@ class PreparedMesh(NamedTuple):
 
 
 def validate_mesh_arrays(
-    vertices: object, faces: object, *, what: str = "mesh"
+    vertices: object, faces: object, *, what: str = "mesh", require_faces: bool = True
 ) -> tuple[np.ndarray, np.ndarray]:
     """Check a mesh's arrays and return them as (float64 (n, 3), int32 (m, 3)) C arrays.
 
     vertices : (n, 3) array of real numbers, all finite, n >= 1.
     faces : (m, 3) array of integers in [0, n), m >= 1.
     what : how messages name the mesh (a file name, say).
+    require_faces : False lets m be 0 (writing a coarse level of a build without topology
+        preservation, which may have collapsed to points).
 
     Raises InvalidMeshError naming the first bad value and how to fix it.
     """
@@ -80,7 +82,7 @@ def validate_mesh_arrays(
     n_vertices = vertices.shape[0]
     if n_vertices == 0:
         raise InvalidMeshError(f"{what}: the mesh has no vertices; give at least one triangle")
-    if faces.shape[0] == 0:
+    if faces.shape[0] == 0 and require_faces:
         raise InvalidMeshError(
             f"{what}: the mesh has no faces; qem-lod simplifies triangle meshes, not point "
             "clouds: give faces (a PLY 'face' element, OBJ 'f' lines, ...)"
@@ -98,8 +100,8 @@ def validate_mesh_arrays(
             f"{tuple(float(x) for x in vertices[bad[0]])} ({bad.size} such vertices); "
             "remove or repair them (NaN and inf cannot be simplified)"
         )
-    low = faces.min()
-    high = faces.max()
+    low = faces.min() if faces.size else 0
+    high = faces.max() if faces.size else 0
     if low < 0 or high >= n_vertices:
         bad_value = low if low < 0 else high
         face = int(np.flatnonzero((faces == bad_value).any(axis=1))[0])

@@ -98,11 +98,16 @@ def write_obj(
     if normal is not None:
         parts.append(_format_rows("vn", normal))
     one_based = faces.astype(np.int64) + 1
-    slots = 1 + (uv is not None or normal is not None) + (normal is not None)
+    # One index per stored table (v, then vt and vn when present): "v", "v/vt", "v//vn"
+    # or "v/vt/vn"; every table has one row per vertex, so the indices are equal.
+    slots = 1 + (uv is not None) + (normal is not None)
     corners = np.repeat(one_based[:, :, None], slots, axis=2)
-    corner_format = {1: "%d", 2: "%d/%d", 3: "%d/%d/%d"}[slots]
-    if uv is None and normal is not None:
-        corner_format = "%d//%d"
+    corner_format = {
+        (False, False): "%d",
+        (True, False): "%d/%d",
+        (False, True): "%d//%d",
+        (True, True): "%d/%d/%d",
+    }[(uv is not None, normal is not None)]
     line = "f " + " ".join([corner_format] * 3) + "\n"
     parts.append(((line * faces.shape[0]) % tuple(corners.ravel().tolist())).encode("ascii"))
     return b"".join(parts)

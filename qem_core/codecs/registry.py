@@ -137,7 +137,7 @@ def encode_mesh(
         raise InvalidOptionsError(
             f"cannot write format {format!r}; formats written are {sorted(_WRITERS)}"
         )
-    vertices, faces = validate_mesh_arrays(vertices, faces)
+    vertices, faces = validate_mesh_arrays(vertices, faces, require_faces=False)
     attributes = _checked_attributes(vertex_attributes or {}, vertices.shape[0], "mesh")
     if texture is not None and not isinstance(texture, bytes | bytearray):
         raise InvalidMeshError("texture must be the bytes of a PNG or JPEG image")

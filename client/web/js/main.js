@@ -1,0 +1,429 @@
+// The qem-lod viewer: a list of the server's meshes, uploads, and a mesh refined on screen
+// as its vertex splits stream in, with a slider over every level received.
+//
+// Selecting a mesh (the page's hash is #mesh=ID) fetches the base mesh as msgpack, then
+// streams /splits from the base to the full count into buffers allocated once
+// (refine.js); the slider moves the level both ways from the splits already held.
+
+import { getMesh, listMeshes, lodError, lodUrl, splitsUrl, uploadMesh } from "./api.js";
+import { ProgressiveLevels, decodeBaseMesh, problemError, streamSplits } from "./refine.js";
+import { MeshScene } from "./scene.js";
+
+const $ = (id) => document.getElementById(id);
+const LIST_POLL_MS = 2000; // while some mesh is queued or building
+const BUILD_POLL_MS = 500; // while an upload of this page is building
+const ERROR_DELAY_MS = 300; // ask for a level's error once the slider rests this long
+
+const count = (n) => Number(n).toLocaleString("en-US");
+const sleep = (ms, signal) =>
+  new Promise((resolve, reject) => {
+    const timer = setTimeout(resolve, ms);
+    signal?.addEventListener("abort", () => {
+      clearTimeout(timer);
+      reject(signal.reason);
+    });
+  });
+
+function formatBytes(n) {
+  if (n < 1024) return `${n} B`;
+  const units = ["KiB", "MiB", "GiB"];
+  let value = n;
+  let unit = -1;
+  do {
+    value /= 1024;
+    unit++;
+  } while (value >= 1024 && unit < units.length - 1);
+  return `${value.toFixed(value < 10 ? 2 : 1)} ${units[unit]}`;
+}
+
+const formatMs = (ms) => (ms == null ? "…" : ms < 1000 ? `${Math.round(ms)} ms` : `${(ms / 1000).toFixed(2)} s`);
+
+// -- state ------------------------------------------------------------------------------
+
+let scene = null;
+let meshes = [];
+let autoPick = true; // show the first ready mesh until the user picks one
+let listTimer = null;
+let view = null; // the mesh on screen, see load()
+
+function showMessage(text, bad = false) {
+  const box = $("message");
+  box.hidden = !text;
+  box.textContent = text || "";
+  box.classList.toggle("bad", bad);
+}
+
+// -- the mesh list ----------------------------------------------------------------------
+
+async function refreshList() {
+  clearTimeout(listTimer);
+  try {
+    meshes = await listMeshes();
+  } catch (error) {
+    $("mesh-list").innerHTML = "";
+    $("mesh-list").append(item("li", "muted", `cannot list meshes: ${error.message}`));
+    listTimer = setTimeout(refreshList, LIST_POLL_MS);
+    return;
+  }
+  renderList();
+  if (meshes.some((m) => m.status === "queued" || m.status === "building")) {
+    listTimer = setTimeout(refreshList, LIST_POLL_MS);
+  }
+  if (autoPick && !currentId()) {
+    const ready = meshes.find((m) => m.status === "ready");
+    if (ready) select(ready.id, { auto: true });
+  }
+}
+
+function item(tag, className, text) {
+  const node = document.createElement(tag);
+  if (className) node.className = className;
+  if (text != null) node.textContent = text;
+  return node;
+}
+
+function renderList() {
+  const list = $("mesh-list");
+  list.innerHTML = "";
+  if (!meshes.length) list.append(item("li", "muted", "no meshes yet: upload one"));
+  for (const mesh of meshes) {
+    const li = item("li", mesh.status);
+    const button = item("button");
+    button.type = "button";
+    button.dataset.id = mesh.id;
+    button.disabled = mesh.status !== "ready";
+    button.setAttribute("aria-current", String(mesh.id === currentId()));
+    button.append(item("span", "name", mesh.name), item("span", "muted", mesh.status));
+    let meta;
+    if (mesh.status === "ready") {
+      meta = `${count(mesh.min_vertices)}–${count(mesh.vertices)} vertices · ${count(mesh.faces)} faces`;
+    } else if (mesh.status === "failed") {
+      meta = mesh.error || "build failed";
+    } else {
+      meta = `${Math.round(100 * mesh.progress)}%`;
+      const bar = item("progress");
+      bar.max = 1;
+      bar.value = mesh.progress;
+      button.append(bar);
+    }
+    button.append(item("span", "meta", meta));
+    button.title = `${mesh.name} (${mesh.id})`;
+    button.addEventListener("click", () => select(mesh.id));
+    li.append(button);
+    list.append(li);
+  }
+}
+
+// -- uploads ----------------------------------------------------------------------------
+
+function setUploadStatus(text, bad = false) {
+  const box = $("upload-status");
+  box.textContent = text;
+  box.classList.toggle("bad", bad);
+}
+
+async function upload(file) {
+  const token = $("token-input").value.trim();
+  setUploadStatus(`uploading ${file.name}…`);
+  let accepted;
+  try {
+    accepted = await uploadMesh(file, {
+      token,
+      onProgress: (sent, total) =>
+        setUploadStatus(`uploading ${file.name}: ${total ? Math.round((100 * sent) / total) : 0}%`),
+    });
+  } catch (error) {
+    if (error.status === 401 || error.status === 403) $("token-box").open = true;
+    setUploadStatus(`${file.name}: ${error.message}`, true);
+    return;
+  }
+  refreshList();
+  for (;;) {
+    let info;
+    try {
+      info = await getMesh(accepted.id);
+    } catch (error) {
+      setUploadStatus(`${file.name}: ${error.message}`, true);
+      return;
+    }
+    if (info.status === "failed") {
+      setUploadStatus(`${file.name}: build failed: ${info.error}`, true);
+      refreshList();
+      return;
+    }
+    if (info.status === "ready") {
+      setUploadStatus(`${file.name}: ready, ${count(info.vertices)} vertices`);
+      await refreshList();
+      select(info.id);
+      return;
+    }
+    setUploadStatus(`${file.name}: ${info.status} ${Math.round(100 * info.progress)}%`);
+    await sleep(BUILD_POLL_MS);
+  }
+}
+
+function setUpUploads() {
+  const zone = $("drop-zone");
+  const input = $("file-input");
+  input.addEventListener("change", () => {
+    if (input.files.length) upload(input.files[0]);
+    input.value = "";
+  });
+  zone.addEventListener("keydown", (event) => {
+    if (event.key === "Enter" || event.key === " ") input.click();
+  });
+  for (const type of ["dragenter", "dragover"]) {
+    zone.addEventListener(type, (event) => {
+      event.preventDefault();
+      zone.classList.add("over");
+    });
+  }
+  zone.addEventListener("dragleave", () => zone.classList.remove("over"));
+  zone.addEventListener("drop", (event) => {
+    event.preventDefault();
+    zone.classList.remove("over");
+    const file = event.dataTransfer.files[0];
+    if (file) upload(file);
+  });
+}
+
+// -- one mesh on screen -----------------------------------------------------------------
+
+function currentId() {
+  const match = /^#mesh=([\w-]+)$/.exec(location.hash);
+  return match ? match[1] : null;
+}
+
+function select(id, { auto = false } = {}) {
+  if (!auto) autoPick = false;
+  if (currentId() === id) {
+    if (!view || view.id !== id) load(id);
+    return;
+  }
+  location.hash = `mesh=${id}`; // hashchange loads it
+}
+
+async function load(id) {
+  view?.abort.abort();
+  const abort = new AbortController();
+  const signal = abort.signal;
+  view = {
+    id,
+    abort,
+    info: null,
+    levels: null,
+    want: Infinity, // the slider's count; Infinity follows the stream to the full mesh
+    baseBytes: 0,
+    splitBytes: 0,
+    streaming: false,
+    started: performance.now(),
+    baseShownMs: null,
+    fullShownMs: null,
+    errors: new Map(), // level -> quadric error, from X-Lod-Error
+    errorTimer: null,
+    failure: null,
+  };
+  const current = view;
+  renderList();
+  $("hud").hidden = true;
+  $("controls").hidden = true;
+  scene?.clear();
+  try {
+    let info = await getMesh(id);
+    while (info.status === "queued" || info.status === "building") {
+      showMessage(`${info.name} is ${info.status} (${Math.round(100 * info.progress)}%)…`);
+      await sleep(BUILD_POLL_MS, signal);
+      info = await getMesh(id);
+    }
+    if (info.status === "failed") throw new Error(`${info.name} could not be built: ${info.error}`);
+    current.info = info;
+    showMessage(`loading ${info.name}…`);
+    const response = await fetch(lodUrl(id, info.min_vertices), { signal });
+    if (!response.ok) throw await problemError(response);
+    const bytes = new Uint8Array(await response.arrayBuffer());
+    current.baseBytes = bytes.length;
+    const base = decodeBaseMesh(bytes);
+    current.errors.set(base.nVertices, Number(response.headers.get("X-Lod-Error")));
+    const levels = new ProgressiveLevels(base, info.vertices, info.faces);
+    current.levels = levels;
+    if (!scene) throw new Error("this browser has no WebGL: the mesh cannot be drawn");
+    showMessage("");
+    setUpControls(levels);
+    scene.show(levels);
+    $("title").textContent = info.name;
+    $("hud").hidden = false;
+    $("controls").hidden = false;
+    updateStats();
+    current.streaming = true;
+    await streamSplits(splitsUrl(id, levels.nBase, levels.nFull), levels, {
+      signal,
+      onBytes: (n) => {
+        current.splitBytes = n;
+        updateStats();
+      },
+      onFrame: () => {
+        if (current !== view) return;
+        if (levels.level < current.want) levels.setLevel(current.want);
+        scene.changed();
+        updateStats();
+      },
+    });
+    current.streaming = false;
+    updateStats();
+  } catch (error) {
+    if (signal.aborted) return;
+    current.streaming = false;
+    current.failure = error.message;
+    showMessage(error.message, true);
+    updateStats();
+  }
+}
+
+function setUpControls(levels) {
+  for (const input of [$("lod-slider"), $("lod-number")]) {
+    input.min = levels.nBase;
+    input.max = levels.nFull;
+    input.value = levels.nFull;
+  }
+}
+
+/** Move the level to the slider's count (as far as received); instant both ways. */
+function setWant(n) {
+  const levels = view?.levels;
+  if (!levels) return;
+  view.want = n >= levels.nFull ? Infinity : Math.max(levels.nBase, Math.round(n));
+  levels.setLevel(Math.min(view.want, levels.received));
+  scene.changed();
+  updateStats();
+}
+
+function updateStats() {
+  const current = view;
+  const levels = current?.levels;
+  if (!levels) return;
+  const set = (id, text, value) => {
+    const node = $(id);
+    node.textContent = text;
+    if (value !== undefined) node.dataset.value = value;
+  };
+  set("stat-vertices", count(levels.level), levels.level);
+  set("stat-faces", count(levels.nFaces), levels.nFaces);
+  set("stat-received", `${count(levels.received)} / ${count(levels.nFull)}`, levels.received);
+  const total = current.baseBytes + current.splitBytes;
+  set(
+    "stat-bytes",
+    `${formatBytes(total)} (base ${formatBytes(current.baseBytes)} + splits ${formatBytes(current.splitBytes)})`,
+    total,
+  );
+  const error = current.errors.get(levels.level);
+  set("stat-error", error === undefined ? "…" : `${error.toPrecision(3)}`, error ?? "");
+  if (error === undefined) scheduleErrorLookup(current);
+  set(
+    "stat-time",
+    `base ${formatMs(current.baseShownMs)} · full ${current.failure ? "–" : formatMs(current.fullShownMs)}`,
+  );
+  const received = levels.nFull > levels.nBase ? (levels.received - levels.nBase) / (levels.nFull - levels.nBase) : 1;
+  const slider = $("lod-slider");
+  slider.style.setProperty("--received", `${(100 * received).toFixed(2)}%`);
+  const shown = current.want === Infinity ? levels.nFull : current.want;
+  if (document.activeElement !== slider) slider.value = shown;
+  if (document.activeElement !== $("lod-number")) $("lod-number").value = levels.level;
+}
+
+/** The split stream carries no per-level error: ask the server for the level's
+ * X-Lod-Error once the level has rested a moment (see api.lodError). */
+function scheduleErrorLookup(current) {
+  clearTimeout(current.errorTimer);
+  current.errorTimer = setTimeout(async () => {
+    const n = current.levels.level;
+    if (current !== view || current.errors.has(n)) return;
+    try {
+      const answer = await lodError(current.id, n);
+      current.errors.set(answer.n, answer.error);
+    } catch {
+      return; // the figure stays "…"; the mesh itself is unaffected
+    }
+    if (current === view) updateStats();
+  }, ERROR_DELAY_MS);
+}
+
+function onRendered(levels) {
+  const current = view;
+  if (!current || current.levels !== levels) return;
+  const elapsed = performance.now() - current.started;
+  let changed = false;
+  if (current.baseShownMs == null) {
+    current.baseShownMs = elapsed;
+    changed = true;
+  }
+  if (current.fullShownMs == null && levels.level === levels.nFull) {
+    current.fullShownMs = elapsed;
+    changed = true;
+  }
+  if (changed) updateStats();
+}
+
+// -- hooks for tests and benchmarks -----------------------------------------------------
+
+async function levelDigest() {
+  // SHA-256 of the level's positions as uint16 LE and faces as uint32 LE: equal to the
+  // digest of the server's lod(level) in the msgpack form when the refinement is exact.
+  const levels = view.levels;
+  const positions = Uint16Array.from(levels.positions.subarray(0, 3 * levels.level));
+  const faces = levels.indices.slice(0, 3 * levels.nFaces);
+  const bytes = new Uint8Array(positions.byteLength + faces.byteLength);
+  bytes.set(new Uint8Array(positions.buffer), 0);
+  bytes.set(new Uint8Array(faces.buffer), positions.byteLength);
+  const digest = new Uint8Array(await crypto.subtle.digest("SHA-256", bytes));
+  return Array.from(digest, (b) => b.toString(16).padStart(2, "0")).join("");
+}
+
+window.qemViewer = {
+  get state() {
+    const levels = view?.levels;
+    return {
+      id: view?.id ?? null,
+      level: levels?.level ?? null,
+      faces: levels?.nFaces ?? null,
+      received: levels?.received ?? null,
+      full: levels?.nFull ?? null,
+      streaming: view?.streaming ?? false,
+      failure: view?.failure ?? null,
+      baseBytes: view?.baseBytes ?? 0,
+      splitBytes: view?.splitBytes ?? 0,
+      baseShownMs: view?.baseShownMs ?? null,
+      fullShownMs: view?.fullShownMs ?? null,
+    };
+  },
+  setLevel: setWant,
+  levelDigest,
+};
+
+// -- start ------------------------------------------------------------------------------
+
+function start() {
+  try {
+    scene = new MeshScene($("canvas"));
+    scene.onRendered = onRendered;
+  } catch (error) {
+    showMessage(`WebGL is not available in this browser (${error.message}); meshes cannot be drawn`, true);
+  }
+  setUpUploads();
+  $("refresh").addEventListener("click", refreshList);
+  const slider = $("lod-slider");
+  slider.addEventListener("input", () => setWant(Number(slider.value)));
+  $("lod-number").addEventListener("change", (event) => setWant(Number(event.target.value)));
+  window.addEventListener("hashchange", () => {
+    const id = currentId();
+    if (id && id !== view?.id) load(id);
+    renderList();
+  });
+  const id = currentId();
+  if (id) {
+    autoPick = false;
+    load(id);
+  }
+  refreshList();
+}
+
+start();

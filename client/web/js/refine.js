@@ -1,0 +1,458 @@
+// The progressive mesh in the browser: the base mesh plus every vertex split received,
+// held in buffers sized for the full mesh, moved to any received level both ways.
+//
+// Wire formats (qem_core/stream.py, qem_core/codecs/msgpack_mesh.py):
+//   base mesh   one msgpack map "qem-mesh-msgpack" v1, positions "u16" on the grid whose
+//               box is `bbox` (the very integers the split stream's deltas refer to);
+//   split stream  frames of uint32 LE length L + L bytes of zlib (RFC 1950) data holding
+//               a msgpack map "qem-splits" v1; integer fields are little-endian byte
+//               planes (all low bytes, then the next...), positions zigzag deltas.
+//
+// Split k (level L = nBase + k -> L + 1), as qem_core/_kernels/refine.py applies it:
+//
+//   before: s at p           after: s at p + d_s, t = L at p + d_t
+//   faces F(L)                      faces F(L + 1): new ones appended (corners as born),
+//                                   each listed face gets its corner s -> t
+//
+// Going down undoes the splits last first: listed faces get t -> s back, s moves back by
+// d_s, the face count drops to F(L). Both directions are exact on the integers, so the
+// buffers always hold every received face at its state for the current level, and a
+// move costs O(splits crossed + relabels), never a refetch.
+
+import { decode } from "@msgpack/msgpack";
+
+export const STREAM_VERSION = 1;
+export const MESH_VERSION = 1;
+const EXPLICIT_FACE = 6; // face codes 0-2: (s, t, x) rotated; 3-5: (t, s, x); 6: explicit
+const FRAME_LIMIT = 64 << 20; // as qem_core.stream: a larger length means a broken stream
+
+export class WireFormatError extends Error {
+  constructor(message) {
+    super(message);
+    this.name = "WireFormatError";
+  }
+}
+
+function fail(message) {
+  throw new WireFormatError(message);
+}
+
+/** `count` little-endian unsigned integers of `width` bytes stored as byte planes. */
+export function fromPlanes(bytes, width, count, what) {
+  if (!(bytes instanceof Uint8Array) || bytes.length !== width * count) {
+    fail(`split frame: '${what}' holds ${bytes?.length} bytes, expected ${width * count}`);
+  }
+  const out = width === 2 ? new Uint16Array(count) : new Uint32Array(count);
+  for (let plane = 0; plane < width; plane++) {
+    const shift = 8 * plane;
+    const offset = plane * count;
+    for (let i = 0; i < count; i++) out[i] += bytes[offset + i] * 2 ** shift;
+  }
+  return out;
+}
+
+/** Zigzag-coded uint32 -> int32 in place: 0, 1, 2, 3... -> 0, -1, 1, -2... */
+function unzigzag(values) {
+  const out = new Int32Array(values.length);
+  for (let i = 0; i < values.length; i++) {
+    const v = values[i];
+    out[i] = (v >>> 1) ^ -(v & 1);
+  }
+  return out;
+}
+
+/** A typed array over a copy of msgpack bin bytes (copied: views may be unaligned). */
+function binArray(bytes, Type, count, what) {
+  if (!(bytes instanceof Uint8Array) || bytes.length !== count * Type.BYTES_PER_ELEMENT) {
+    fail(`base mesh: '${what}' holds ${bytes?.length} bytes, expected ${count * Type.BYTES_PER_ELEMENT}`);
+  }
+  const copy = new Uint8Array(bytes.length);
+  copy.set(bytes);
+  return new Type(copy.buffer);
+}
+
+const INDEX_TYPES = { u8: Uint8Array, u16: Uint16Array, u32: Uint32Array };
+
+/** The grid p = origin + q * step of `bits` bits over the box low..high (quantise.Grid). */
+export function gridOverBox(bbox, bits) {
+  const top = 2 ** bits - 1;
+  const origin = bbox.slice(0, 3);
+  const step = [0, 1, 2].map((d) => (bbox[3 + d] > bbox[d] ? bbox[3 + d] - bbox[d] : 1) / top);
+  return { origin, step, bits };
+}
+
+/** Decode a "qem-mesh-msgpack" level with u16 positions (the form lod?format=msgpack). */
+export function decodeBaseMesh(bytes) {
+  let message;
+  try {
+    message = decode(bytes);
+  } catch (error) {
+    fail(`base mesh: not msgpack (${error.message})`);
+  }
+  if (message?.format !== "qem-mesh-msgpack") fail("base mesh: not a qem-mesh-msgpack map");
+  if (message.version !== MESH_VERSION) {
+    fail(`base mesh: version ${message.version} is not supported (this viewer reads ${MESH_VERSION})`);
+  }
+  if (message.position_encoding !== "u16") {
+    fail(`base mesh: positions are '${message.position_encoding}', the splits need 'u16' grid integers`);
+  }
+  const nVertices = message.vertex_count;
+  const nFaces = message.face_count;
+  const IndexType = INDEX_TYPES[message.index_type];
+  if (!IndexType) fail(`base mesh: unknown index_type '${message.index_type}'`);
+  const bbox = message.bbox;
+  if (!Array.isArray(bbox) || bbox.length !== 6 || !bbox.every(Number.isFinite)) {
+    fail("base mesh: 'bbox' must be 6 finite numbers");
+  }
+  return {
+    nVertices,
+    nFaces,
+    bbox,
+    bits: message.position_bits,
+    positions: binArray(message.positions, Uint16Array, 3 * nVertices, "positions"),
+    indices: binArray(message.indices, IndexType, 3 * nFaces, "indices"),
+  };
+}
+
+/** Cuts a byte stream (any chunking) into frame payloads. */
+export class FrameCutter {
+  constructor() {
+    this.buffer = new Uint8Array(1 << 16);
+    this.start = 0;
+    this.end = 0;
+  }
+
+  /** Append a chunk; returns the payloads it completed (copies, in stream order). */
+  push(chunk) {
+    this.reserve(chunk.length);
+    this.buffer.set(chunk, this.end);
+    this.end += chunk.length;
+    const payloads = [];
+    while (this.end - this.start >= 4) {
+      const b = this.buffer;
+      const s = this.start;
+      const length = (b[s] | (b[s + 1] << 8) | (b[s + 2] << 16) | (b[s + 3] << 24)) >>> 0;
+      if (length > FRAME_LIMIT) fail(`split frame declares ${length} bytes, over the limit`);
+      if (this.end - s < 4 + length) break;
+      payloads.push(b.slice(s + 4, s + 4 + length));
+      this.start = s + 4 + length;
+    }
+    return payloads;
+  }
+
+  /** Raise if the stream ended inside a frame. */
+  finish() {
+    if (this.end > this.start) {
+      fail(`split stream ends inside a frame (${this.end - this.start} bytes left)`);
+    }
+  }
+
+  reserve(extra) {
+    const held = this.end - this.start;
+    if (this.start > 0 && this.end + extra > this.buffer.length) {
+      this.buffer.copyWithin(0, this.start, this.end);
+      this.start = 0;
+      this.end = held;
+    }
+    if (held + extra > this.buffer.length) {
+      let size = this.buffer.length;
+      while (size < held + extra) size *= 2;
+      const grown = new Uint8Array(size);
+      grown.set(this.buffer.subarray(0, held));
+      this.buffer = grown;
+    }
+  }
+}
+
+/** zlib (RFC 1950) data -> bytes, with the browser's DecompressionStream. */
+export async function inflate(payload) {
+  const stream = new Blob([payload]).stream().pipeThrough(new DecompressionStream("deflate"));
+  return new Uint8Array(await new Response(stream).arrayBuffer());
+}
+
+/** One inflated frame's msgpack map, fields checked and planes decoded (no mesh state). */
+export function decodeFrame(bytes) {
+  let body;
+  try {
+    body = decode(bytes);
+  } catch (error) {
+    fail(`unreadable split frame: ${error.message}`);
+  }
+  if (body?.format !== "qem-splits") fail("not a qem-splits frame");
+  if (!(body.version <= STREAM_VERSION)) fail(`split frame version ${body.version} is too new`);
+  const counts = ["n_from", "n_to", "faces_from", "bits", "n_new_faces", "n_relabels", "n_explicit"];
+  for (const key of counts) {
+    if (!Number.isInteger(body[key]) || body[key] < 0) fail(`split frame: '${key}' is ${body[key]}`);
+  }
+  const k = body.n_to - body.n_from;
+  const nNew = body.n_new_faces;
+  const nExplicit = body.n_explicit;
+  if (k < 0 || nExplicit > nNew) fail("split frame: inconsistent counts");
+  if (!Array.isArray(body.grid) || body.grid.length !== 6) fail("split frame: bad 'grid'");
+  const faceCodes = body.face_codes;
+  if (!(faceCodes instanceof Uint8Array) || faceCodes.length !== nNew) {
+    fail("split frame: face codes do not match n_new_faces");
+  }
+  return {
+    nFrom: body.n_from,
+    nTo: body.n_to,
+    facesFrom: body.faces_from,
+    bits: body.bits,
+    grid: body.grid,
+    splitBack: fromPlanes(body.split_back, 4, k, "split_back"),
+    deltas: unzigzag(fromPlanes(body.position_deltas, 4, 6 * k, "position_deltas")),
+    newFaceCounts: fromPlanes(body.new_face_counts, 2, k, "new_face_counts"),
+    faceCodes,
+    cornersBack: fromPlanes(body.face_corners_back, 4, nNew + 2 * nExplicit, "face_corners_back"),
+    nExplicit,
+    relabelCounts: fromPlanes(body.relabel_counts, 2, k, "relabel_counts"),
+    relabelBack: fromPlanes(body.relabel_faces_back, 4, body.n_relabels, "relabel_faces_back"),
+  };
+}
+
+/**
+ * The mesh at any received level, in buffers allocated once for the full mesh.
+ *
+ * positions : Float32Array(3 * nFull), grid integers (exact in float32 below 2^24);
+ *   render with origin + q * step as the object's transform.
+ * indices : Uint32Array(3 * fFull), every received face at its state for `level`.
+ */
+export class ProgressiveLevels {
+  constructor(base, nFull, fFull) {
+    if (!(nFull >= base.nVertices && fFull >= base.nFaces)) {
+      fail(`the full mesh (${nFull} vertices, ${fFull} faces) is smaller than the base mesh`);
+    }
+    this.nBase = base.nVertices;
+    this.nFull = nFull;
+    this.fFull = fFull;
+    this.bits = base.bits;
+    this.grid = gridOverBox(base.bbox, base.bits);
+    this.positions = new Float32Array(3 * nFull);
+    this.positions.set(base.positions);
+    this.indices = new Uint32Array(3 * fFull);
+    this.indices.set(base.indices);
+    const nSplits = nFull - this.nBase;
+    // Split records, kept so that the level can go down as well as up.
+    this.splitVertex = new Uint32Array(nSplits);
+    this.deltas = new Int32Array(6 * nSplits);
+    this.levelFaces = new Uint32Array(nSplits + 1); // faces of level nBase + k
+    this.levelFaces[0] = base.nFaces;
+    this.relabelOffsets = new Uint32Array(nSplits + 1);
+    this.relabelFaces = new Uint32Array(Math.max(16, 2 * nSplits)); // grows if needed
+    this.received = this.nBase; // vertex count up to which splits are held
+    this.level = this.nBase; // vertex count the buffers hold now
+  }
+
+  facesAt(n) {
+    return this.levelFaces[n - this.nBase];
+  }
+
+  get nFaces() {
+    return this.facesAt(this.level);
+  }
+
+  /** Store a decoded frame's splits (they must continue the received ones); the new faces
+   * go into the index buffer as born. Does not move the level. */
+  addFrame(frame) {
+    const { nFrom, nTo, facesFrom } = frame;
+    if (nFrom !== this.received || facesFrom !== this.facesAt(this.received)) {
+      fail(
+        `frame refines ${nFrom} vertices / ${facesFrom} faces, the viewer holds ` +
+          `${this.received} / ${this.facesAt(this.received)}`,
+      );
+    }
+    if (nTo > this.nFull) fail(`frame goes to ${nTo} vertices, past the full ${this.nFull}`);
+    this.checkGrid(frame);
+    const k = nTo - nFrom;
+    const first = nFrom - this.nBase;
+    let faces = facesFrom;
+    for (let i = 0; i < k; i++) faces += frame.newFaceCounts[i];
+    if (faces - facesFrom !== frame.faceCodes.length) {
+      fail("split frame: face counts do not match the face codes");
+    }
+    if (faces > this.fFull) fail(`frame brings ${faces} faces, past the full ${this.fFull}`);
+    for (let i = 0; i < k; i++) {
+      const back = frame.splitBack[i];
+      if (back < 1 || back > nFrom + i) fail(`split ${nFrom + i}: names a vertex that does not exist yet`);
+    }
+    this.writeNewFaces(frame);
+    // Splits, positions and relabels (relabel back is counted from the faces before).
+    const relabelStart = this.relabelOffsets[first];
+    this.reserveRelabels(relabelStart + frame.relabelBack.length);
+    let r = 0;
+    for (let i = 0; i < k; i++) {
+      const t = nFrom + i;
+      this.splitVertex[first + i] = t - frame.splitBack[i];
+      this.deltas.set(frame.deltas.subarray(6 * i, 6 * i + 6), 6 * (first + i));
+      const before = this.levelFaces[first + i];
+      this.levelFaces[first + i + 1] = before + frame.newFaceCounts[i];
+      for (let j = 0; j < frame.relabelCounts[i]; j++, r++) {
+        const backFace = frame.relabelBack[r];
+        if (r >= frame.relabelBack.length || backFace >= before) {
+          fail(`split ${t}: relabels a face that does not exist yet`);
+        }
+        this.relabelFaces[relabelStart + r] = before - 1 - backFace;
+      }
+      this.relabelOffsets[first + i + 1] = relabelStart + r;
+    }
+    if (r !== frame.relabelBack.length) fail("split frame: relabel counts do not add up");
+    this.received = nTo;
+  }
+
+  writeNewFaces(frame) {
+    const { nFrom, faceCodes, cornersBack, nExplicit } = frame;
+    const out = this.indices;
+    let f = 3 * frame.facesFrom;
+    let coded = 0;
+    let explicit = faceCodes.length - nExplicit;
+    let face = 0;
+    for (let i = 0; i < frame.newFaceCounts.length; i++) {
+      const t = nFrom + i;
+      const s = t - frame.splitBack[i];
+      for (let j = 0; j < frame.newFaceCounts[i]; j++, face++, f += 3) {
+        const code = faceCodes[face];
+        if (code === EXPLICIT_FACE) {
+          for (let c = 0; c < 3; c++) {
+            const back = cornersBack[explicit++];
+            if (back > t) fail(`split ${t}: a new face uses a vertex that does not exist`);
+            out[f + c] = t - back;
+          }
+          continue;
+        }
+        if (code > EXPLICIT_FACE) fail(`split frame: bad face code ${code}`);
+        const back = cornersBack[coded++];
+        if (back > t) fail(`split ${t}: a new face uses a vertex that does not exist`);
+        const rotation = code % 3;
+        const swapped = code >= 3;
+        out[f + rotation] = swapped ? t : s;
+        out[f + ((rotation + 1) % 3)] = swapped ? s : t;
+        out[f + ((rotation + 2) % 3)] = t - back;
+      }
+    }
+    if (coded !== faceCodes.length - nExplicit) fail("split frame: n_explicit is wrong");
+  }
+
+  checkGrid(frame) {
+    const { origin, step, bits } = this.grid;
+    const close = (a, b) => Math.abs(a - b) <= 1e-9 * Math.max(Math.abs(a), Math.abs(b), 1e-300);
+    const same =
+      frame.bits === bits &&
+      [0, 1, 2].every((d) => close(frame.grid[d], origin[d]) && close(frame.grid[3 + d], step[d]));
+    if (!same) {
+      fail(
+        `the split stream's grid (${frame.bits} bits, ${frame.grid}) is not the base mesh's ` +
+          `(${bits} bits, ${origin}, ${step}): positions would not refine exactly`,
+      );
+    }
+  }
+
+  reserveRelabels(count) {
+    if (count <= this.relabelFaces.length) return;
+    let size = this.relabelFaces.length;
+    while (size < count) size *= 2;
+    const grown = new Uint32Array(size);
+    grown.set(this.relabelFaces);
+    this.relabelFaces = grown;
+  }
+
+  /** Move the buffers to `n` vertices (clamped into [nBase, received]); returns the
+   * level reached. */
+  setLevel(n) {
+    const target = Math.max(this.nBase, Math.min(Math.round(n), this.received));
+    while (this.level < target) this.applySplit(this.level - this.nBase);
+    while (this.level > target) this.undoSplit(this.level - 1 - this.nBase);
+    return this.level;
+  }
+
+  applySplit(k) {
+    const s = this.splitVertex[k];
+    const t = this.nBase + k;
+    const q = this.positions;
+    const d = this.deltas;
+    for (let axis = 0; axis < 3; axis++) {
+      const old = q[3 * s + axis];
+      q[3 * s + axis] = old + d[6 * k + axis];
+      q[3 * t + axis] = old + d[6 * k + 3 + axis];
+    }
+    const faces = this.indices;
+    for (let r = this.relabelOffsets[k]; r < this.relabelOffsets[k + 1]; r++) {
+      const f = 3 * this.relabelFaces[r];
+      // The first corner that is s, as apply_split_run does.
+      if (faces[f] === s) faces[f] = t;
+      else if (faces[f + 1] === s) faces[f + 1] = t;
+      else if (faces[f + 2] === s) faces[f + 2] = t;
+    }
+    this.level = t + 1;
+  }
+
+  undoSplit(k) {
+    const s = this.splitVertex[k];
+    const t = this.nBase + k;
+    const faces = this.indices;
+    for (let r = this.relabelOffsets[k + 1] - 1; r >= this.relabelOffsets[k]; r--) {
+      const f = 3 * this.relabelFaces[r];
+      // t did not exist before this split, so the one corner that is t was s.
+      if (faces[f] === t) faces[f] = s;
+      else if (faces[f + 1] === t) faces[f + 1] = s;
+      else if (faces[f + 2] === t) faces[f + 2] = s;
+    }
+    const q = this.positions;
+    for (let axis = 0; axis < 3; axis++) q[3 * s + axis] -= this.deltas[6 * k + axis];
+    this.level = t;
+  }
+}
+
+/**
+ * Stream the splits of `url` into `levels`: fetch + ReadableStream, frames cut as bytes
+ * arrive, inflated concurrently, applied in order. onFrame(bytesSoFar) runs after each
+ * frame is stored; onBytes(bytesSoFar) after each network chunk.
+ */
+export async function streamSplits(url, levels, { onFrame, onBytes, signal } = {}) {
+  const response = await fetch(url, { signal });
+  if (!response.ok) throw await problemError(response);
+  const reader = response.body.getReader();
+  const cutter = new FrameCutter();
+  let bytes = 0;
+  let applied = Promise.resolve();
+  for (;;) {
+    const { done, value } = await reader.read();
+    if (done) break;
+    bytes += value.length;
+    onBytes?.(bytes);
+    for (const payload of cutter.push(value)) {
+      const inflated = inflate(payload); // starts now; frames are applied in order below
+      inflated.catch(() => {}); // reported through `applied`
+      const seen = bytes;
+      applied = applied.then(async () => {
+        let frame;
+        try {
+          frame = decodeFrame(await inflated);
+        } catch (error) {
+          if (error instanceof WireFormatError) throw error;
+          fail(`split frame does not inflate: ${error.message}`);
+        }
+        levels.addFrame(frame);
+        onFrame?.(seen);
+      });
+    }
+  }
+  cutter.finish();
+  await applied;
+  return bytes;
+}
+
+/** An Error carrying an RFC 9457 problem (or the status line when the body is not one). */
+export async function problemError(response) {
+  let detail = `${response.status} ${response.statusText}`;
+  let problem = null;
+  try {
+    problem = await response.json();
+    detail = problem.detail || problem.title || detail;
+  } catch {
+    // not JSON: keep the status line
+  }
+  const error = new Error(detail);
+  error.status = response.status;
+  error.problem = problem;
+  return error;
+}

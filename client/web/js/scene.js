@@ -1,0 +1,126 @@
+// three.js rendering of a ProgressiveLevels: one BufferGeometry over its full-size
+// buffers, grown and shrunk with setDrawRange; only the changed prefix is re-uploaded.
+//
+// Positions stay grid integers; the mesh's transform maps them to the model's units
+// (origin + q * step), centred on the grid box. Flat shading takes normals from screen
+// derivatives, so no normal buffer has to follow the level.
+
+import * as THREE from "three";
+import { OrbitControls } from "three/addons/controls/OrbitControls.js";
+
+export class MeshScene {
+  /** Throws when the browser has no WebGL. */
+  constructor(canvas) {
+    this.canvas = canvas;
+    this.renderer = new THREE.WebGLRenderer({ canvas, antialias: true });
+    this.renderer.setPixelRatio(Math.min(window.devicePixelRatio, 2));
+    this.scene = new THREE.Scene();
+    this.scene.background = new THREE.Color(0x1d2026);
+    this.camera = new THREE.PerspectiveCamera(40, 1, 0.01, 100);
+    this.scene.add(this.camera);
+    this.scene.add(new THREE.HemisphereLight(0xdde6ff, 0x40382e, 1.2));
+    const key = new THREE.DirectionalLight(0xffffff, 2.2);
+    key.position.set(1, 1.5, 2); // follows the camera, so the side in view is lit
+    this.camera.add(key);
+    this.controls = new OrbitControls(this.camera, canvas);
+    this.controls.addEventListener("change", () => this.requestRender());
+    this.mesh = null;
+    this.levels = null;
+    this.dirty = false;
+    this.pending = false;
+    this.onRendered = null; // (levels) => void, after each frame drawn
+    new ResizeObserver(() => this.resize()).observe(canvas);
+    this.resize();
+  }
+
+  resize() {
+    const { clientWidth: width, clientHeight: height } = this.canvas;
+    if (!width || !height) return;
+    this.renderer.setSize(width, height, false);
+    this.camera.aspect = width / height;
+    this.camera.updateProjectionMatrix();
+    this.requestRender();
+  }
+
+  /** Show `levels` (a ProgressiveLevels), framed by its grid box. */
+  show(levels) {
+    this.clear();
+    this.levels = levels;
+    const geometry = new THREE.BufferGeometry();
+    const position = new THREE.BufferAttribute(levels.positions, 3);
+    position.setUsage(THREE.DynamicDrawUsage);
+    geometry.setAttribute("position", position);
+    const index = new THREE.BufferAttribute(levels.indices, 1);
+    index.setUsage(THREE.DynamicDrawUsage);
+    geometry.setIndex(index);
+    geometry.setDrawRange(0, 3 * levels.nFaces);
+    const material = new THREE.MeshStandardMaterial({
+      color: 0xc9cdd6,
+      roughness: 0.65,
+      metalness: 0.0,
+      flatShading: true,
+      side: THREE.DoubleSide,
+    });
+    const mesh = new THREE.Mesh(geometry, material);
+    mesh.frustumCulled = false; // the bounding sphere would have to follow the level
+    const { origin, step, bits } = levels.grid;
+    const top = 2 ** bits - 1;
+    const size = step.map((s) => s * top);
+    const radius = 0.5 * Math.hypot(...size) || 1;
+    mesh.scale.set(...step);
+    mesh.position.set(...origin.map((o, d) => o - (origin[d] + 0.5 * size[d])));
+    this.scene.add(mesh);
+    this.mesh = mesh;
+    this.camera.near = radius / 100;
+    this.camera.far = radius * 100;
+    this.camera.position.set(0, 0.2 * radius, 2.6 * radius);
+    this.camera.updateProjectionMatrix();
+    this.controls.target.set(0, 0, 0);
+    this.controls.update();
+    this.changed();
+  }
+
+  clear() {
+    if (!this.mesh) return;
+    this.scene.remove(this.mesh);
+    this.mesh.geometry.dispose();
+    this.mesh.material.dispose();
+    this.mesh = null;
+    this.levels = null;
+    this.requestRender();
+  }
+
+  /** The levels' buffers changed (new faces, another level): upload and redraw. */
+  changed() {
+    this.dirty = true;
+    this.requestRender();
+  }
+
+  requestRender() {
+    if (this.pending) return;
+    this.pending = true;
+    requestAnimationFrame(() => this.render());
+  }
+
+  render() {
+    this.pending = false;
+    const levels = this.levels;
+    if (this.mesh && this.dirty) {
+      const geometry = this.mesh.geometry;
+      const position = geometry.getAttribute("position");
+      const index = geometry.getIndex();
+      // Rows past the level are never drawn: upload the prefix only. Split records
+      // touch scattered rows below it, so the whole prefix goes.
+      position.clearUpdateRanges();
+      position.addUpdateRange(0, 3 * levels.level);
+      position.needsUpdate = true;
+      index.clearUpdateRanges();
+      index.addUpdateRange(0, 3 * levels.nFaces);
+      index.needsUpdate = true;
+      geometry.setDrawRange(0, 3 * levels.nFaces);
+      this.dirty = false;
+    }
+    this.renderer.render(this.scene, this.camera);
+    if (levels) this.onRendered?.(levels);
+  }
+}

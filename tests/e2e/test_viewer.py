@@ -1,0 +1,321 @@
+"""The web viewer (client/web): its decoder under node, and the whole page in Chromium.
+
+- ``refine.js`` run by node on a hand-drawn progressive mesh whose frames use every face
+  code, then on a built one, moved down and up through every level: each level's grid
+  integers and faces must equal ``pm.lod(n)`` bit for bit.
+- Headless Chromium (Debian's, driven by Playwright) on ``qem serve``: upload bunny.ply
+  through the page, wait until the refinement reaches the server's vertex count, check
+  the figures and the level's digest against the server's lod, move the slider down and
+  up (the figures change at once, from data already held), and save a screenshot that
+  shows a render (not one colour).
+
+The browser test skips only where no Chromium can be found; ``.ci/run`` installs it.
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import json
+import os
+import shutil
+import subprocess
+import zlib
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import httpx
+import msgpack
+import numpy as np
+import pytest
+
+import qem_core
+from qem_core import codecs
+from qem_core.progressive import ProgressiveMesh
+from qem_core.stream import encode_split_frames, grid_for
+from tests.tiny_meshes import icosphere
+
+from .conftest import REPO, shared_mesh
+
+WEB = REPO / "client" / "web"
+# Without the background-networking flags Chromium dials out at start, which a closed
+# network refuses; a fresh profile keeps runs independent.
+CHROMIUM_FLAGS = (
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+)
+READY_TIMEOUT_MS = 300_000  # a cold build compiles numba kernels first
+
+
+def find_chromium() -> str | None:
+    """$QEM_CHROMIUM, else Debian's /usr/bin/chromium, else a chromium or chrome on PATH."""
+    candidates = [os.environ.get("QEM_CHROMIUM"), "/usr/bin/chromium"]
+    candidates += [shutil.which(name) for name in ("chromium", "chromium-browser", "google-chrome")]
+    return next((path for path in candidates if path and os.access(path, os.X_OK)), None)
+
+
+def require_web_packages() -> None:
+    if not (WEB / "node_modules" / "three" / "build" / "three.module.js").is_file():
+        pytest.fail("client/web/node_modules is missing: run `make install` (npm ci in client/web)")
+
+
+@contextmanager
+def chromium_page(user_data_dir: Path, viewport=(1200, 800)) -> Iterator:
+    """A Playwright page in headless Debian Chromium with a fresh profile (skips the test
+    when no Chromium is found; Playwright's own browser downloads are never used)."""
+    executable = find_chromium()
+    if executable is None:
+        pytest.skip("no Chromium found (apt-get install -y chromium, or set QEM_CHROMIUM)")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as playwright:
+        context = playwright.chromium.launch_persistent_context(
+            str(user_data_dir),
+            executable_path=executable,
+            headless=True,
+            args=list(CHROMIUM_FLAGS),
+            viewport={"width": viewport[0], "height": viewport[1]},
+        )
+        try:
+            page = context.new_page()
+            page.errors = []
+            page.on("pageerror", lambda error: page.errors.append(str(error)))
+            yield page
+        finally:
+            context.close()
+
+
+def level_digest(positions: np.ndarray, faces: np.ndarray) -> str:
+    """SHA-256 of grid positions as uint16 LE then faces as uint32 LE: what the page's
+    ``qemViewer.levelDigest()`` computes over its buffers."""
+    data = np.asarray(positions, "<u2").tobytes() + np.asarray(faces, "<u4").tobytes()
+    return hashlib.sha256(data).hexdigest()
+
+
+def pm_digest(pm: ProgressiveMesh, n: int) -> str:
+    vertices, faces = pm.lod(n)
+    return level_digest(grid_for(pm).quantise(vertices), faces)
+
+
+def served_digest(http: httpx.Client, url: str, n: int) -> tuple[str, int]:
+    """Digest and face count of the server's lod(n) in the msgpack form."""
+    response = http.get(f"{url}/lod", params={"vertices": n, "format": "msgpack"})
+    response.raise_for_status()
+    message = msgpack.unpackb(response.content)
+    index_dtype = {"u8": "u1", "u16": "<u2", "u32": "<u4"}[message["index_type"]]
+    positions = np.frombuffer(message["positions"], "<u2")
+    faces = np.frombuffer(message["indices"], index_dtype)
+    return level_digest(positions, faces), int(response.headers["X-Lod-Faces"])
+
+
+# -- refine.js under node -----------------------------------------------------------------
+
+# Feeds the stream to refine.js in uneven chunks, then visits the levels asked for, in
+# that order, printing each level's digest (node:crypto, same bytes as the page's).
+_NODE_DRIVER = """
+import { readFileSync } from "node:fs";
+import { createHash } from "node:crypto";
+import { pathToFileURL } from "node:url";
+const [refinePath, dir] = process.argv.slice(2);
+const { FrameCutter, ProgressiveLevels, decodeBaseMesh, decodeFrame, inflate } =
+  await import(pathToFileURL(refinePath).href);
+const plan = JSON.parse(readFileSync(`${dir}/plan.json`, "utf8"));
+const base = decodeBaseMesh(readFileSync(`${dir}/base.msgpack`));
+const levels = new ProgressiveLevels(base, plan.n_full, plan.f_full);
+const stream = readFileSync(`${dir}/splits.bin`);
+const cutter = new FrameCutter();
+for (let at = 0, size = 1; at < stream.length; at += size, size = 2 * size + 1) {
+  for (const payload of cutter.push(stream.subarray(at, at + size))) {
+    levels.addFrame(decodeFrame(await inflate(payload)));
+  }
+}
+cutter.finish();
+const out = {};
+for (const n of plan.visit) {
+  levels.setLevel(n);
+  const positions = Uint16Array.from(levels.positions.subarray(0, 3 * levels.level));
+  const faces = levels.indices.slice(0, 3 * levels.nFaces);
+  const hash = createHash("sha256");
+  hash.update(new Uint8Array(positions.buffer));
+  hash.update(new Uint8Array(faces.buffer));
+  out[n] = { level: levels.level, faces: levels.nFaces, digest: hash.digest("hex") };
+}
+console.log(JSON.stringify(out));
+"""
+
+
+def run_refine_js(tmp_path: Path, pm: ProgressiveMesh, visit: list[int]) -> dict:
+    node = shutil.which("node")
+    if node is None:
+        pytest.fail("node is missing: it is needed for the viewer's packages (npm ci)")
+    require_web_packages()
+    vertices, faces = pm.lod(pm.n_base)
+    base = codecs.encode_mesh(
+        vertices, faces, "msgpack", quantize_bits=16, grid_box=pm.position_bounds
+    )
+    (tmp_path / "base.msgpack").write_bytes(base)
+    frames = encode_split_frames(pm, pm.n_base, pm.n_full, splits_per_frame=2)
+    (tmp_path / "splits.bin").write_bytes(b"".join(frames))
+    plan = {"n_full": pm.n_full, "f_full": pm.n_faces_full, "visit": visit}
+    (tmp_path / "plan.json").write_text(json.dumps(plan))
+    driver = tmp_path / "driver.mjs"
+    driver.write_text(_NODE_DRIVER)
+    done = subprocess.run(
+        [node, str(driver), str(WEB / "js" / "refine.js"), str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    return {int(n): level for n, level in json.loads(done.stdout).items()}
+
+
+def hand_drawn_pm() -> ProgressiveMesh:
+    """A triangle refined by three splits whose new faces need every kind of face code.
+
+    base: f0 = (0, 1, 2)
+    split 0: s=0 -> t=3   new f1 = (1, 3, 2)  explicit (no s-t edge)   relabel none
+    split 1: s=3 -> t=4   new f2 = (4, 3, 1)  code 3 (t, s, x)          relabel f1: 3 -> 4
+    split 2: s=1 -> t=5   new f3 = (2, 1, 5)  code 1 (x, s, t)          relabel f0: 1 -> 5
+                          new f4 = (1, 4, 5)  code 5 (s, x, t)
+    """
+    return ProgressiveMesh(
+        base_vertices=np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]),
+        split_vertex=np.array([0, 3, 1], np.int32),
+        split_positions=np.array(
+            [
+                [[0.0, 0, 0], [1, 1, 0.5]],
+                [[1.0, 1, 0.5], [0.5, 0.5, 1]],
+                [[1.0, 0, 0], [1, -0.5, 0.25]],
+            ]
+        ),
+        face_corners=np.array([[0, 1, 2], [1, 3, 2], [4, 3, 1], [2, 1, 5], [1, 4, 5]], np.int32),
+        level_faces=np.array([1, 2, 3, 5]),
+        relabel_offsets=np.array([0, 0, 1, 2]),
+        relabel_faces=np.array([1, 0], np.int32),
+        split_cost=np.array([3.0, 2.0, 1.0]),
+    )
+
+
+def test_refine_js_decodes_every_face_code_exactly(tmp_path):
+    pm = hand_drawn_pm()
+    codes = set()
+    for frame in encode_split_frames(pm, pm.n_base, pm.n_full):
+        codes |= set(msgpack.unpackb(zlib.decompress(frame[4:]))["face_codes"])
+    assert codes == {1, 3, 5, 6}  # the sketch does what it says
+    visit = [6, 3, 5, 4, 6]
+    levels = run_refine_js(tmp_path, pm, visit)
+    for n in visit:
+        assert levels[n] == {"level": n, "faces": pm.n_faces(n), "digest": pm_digest(pm, n)}
+
+
+def test_refine_js_moves_down_and_up_through_every_level(tmp_path):
+    vertices, faces = icosphere(2, jitter=0.05, seed=3)
+    pm = qem_core.build(vertices, faces)
+    down = list(range(pm.n_full, pm.n_base - 1, -1))
+    visit = down + list(range(pm.n_base + 1, pm.n_full + 1, 7)) + [pm.n_full]
+    levels = run_refine_js(tmp_path, pm, visit)
+    assert len(levels) == pm.n_full - pm.n_base + 1
+    for n in down:
+        assert levels[n] == {"level": n, "faces": pm.n_faces(n), "digest": pm_digest(pm, n)}
+
+
+# -- the page in Chromium -----------------------------------------------------------------
+
+# The canvas screenshot decoded by the browser's own PNG decoder: the share of pixels
+# away from the background colour and the number of distinct colours.
+_IMAGE_STATS = """
+async (data) => {
+  const blob = await (await fetch(`data:image/png;base64,${data}`)).blob();
+  const bitmap = await createImageBitmap(blob);
+  const canvas = new OffscreenCanvas(bitmap.width, bitmap.height);
+  const context = canvas.getContext("2d");
+  context.drawImage(bitmap, 0, 0);
+  const pixels = context.getImageData(0, 0, bitmap.width, bitmap.height).data;
+  const [r0, g0, b0] = pixels;
+  let away = 0;
+  const colours = new Set();
+  for (let i = 0; i < pixels.length; i += 4) {
+    const r = pixels[i] - r0, g = pixels[i + 1] - g0, b = pixels[i + 2] - b0;
+    if (Math.abs(r) + Math.abs(g) + Math.abs(b) > 24) away++;
+    colours.add((pixels[i] << 16) | (pixels[i + 1] << 8) | pixels[i + 2]);
+  }
+  return { away: away / (pixels.length / 4), colours: colours.size };
+}
+"""
+
+
+def on_screen(page, name: str) -> int:
+    """A figure of the HUD as a person reads it ("34,834" -> 34834)."""
+    return int(page.text_content(f"#stat-{name}").replace(",", ""))
+
+
+def test_viewer_refines_to_the_full_mesh_and_slides_both_ways(server, tmp_path):
+    bunny = shared_mesh("bunny.ply")
+    require_web_packages()
+    with chromium_page(tmp_path / "profile") as page, httpx.Client(timeout=60) as http:
+        page.goto(f"{server.url}/")
+        page.set_input_files("#file-input", str(bunny))  # the page's own upload
+        page.wait_for_function(
+            "() => { const s = window.qemViewer?.state;"
+            " return s?.level !== null && s.level === s.full && s.fullShownMs !== null; }",
+            timeout=READY_TIMEOUT_MS,
+        )
+        state = page.evaluate("window.qemViewer.state")
+        info = http.get(f"{server.url}/v1/meshes/{state['id']}").json()
+        assert info["name"] == "bunny.ply" and info["status"] == "ready"
+        assert page.get_by_role("button", name="bunny.ply").count() == 1  # in the list
+        assert on_screen(page, "vertices") == info["vertices"] == state["level"]
+        assert on_screen(page, "faces") == info["faces"]
+        assert page.get_attribute("#stat-received", "data-value") == str(info["vertices"])
+        url = f"{server.url}/v1/meshes/{info['id']}"
+        assert (
+            page.evaluate("window.qemViewer.levelDigest()")
+            == served_digest(http, url, info["vertices"])[0]
+        )
+        # The stream went through the real network path in frames, after the base mesh.
+        assert state["baseBytes"] > 0 and state["splitBytes"] > 0
+        assert 0 < state["baseShownMs"] <= state["fullShownMs"]
+
+        slider = page.locator("#lod-slider")
+        slider.focus()
+        slider.press("Home")  # all the way down: the base mesh, at once
+        assert on_screen(page, "vertices") == info["min_vertices"]
+        assert on_screen(page, "faces") == served_digest(http, url, info["min_vertices"])[1]
+        slider.press("End")  # and back up
+        assert on_screen(page, "vertices") == info["vertices"]
+        assert on_screen(page, "faces") == info["faces"]
+        for n in (info["vertices"] // 3, 1000, info["vertices"] - 5, 100):
+            slider.evaluate(
+                "(node, n) => { node.value = n; node.dispatchEvent(new Event('input')); }", n
+            )
+            digest, n_faces = served_digest(http, url, n)
+            assert on_screen(page, "vertices") == n
+            assert on_screen(page, "faces") == n_faces
+            assert page.evaluate("window.qemViewer.levelDigest()") == digest
+        # The error figure is the server's X-Lod-Error for the level on screen.
+        expected = float(http.get(f"{url}/lod", params={"vertices": 100}).headers["X-Lod-Error"])
+        page.wait_for_function(
+            "() => document.getElementById('stat-error').dataset.value !== ''", timeout=30_000
+        )
+        assert float(page.get_attribute("#stat-error", "data-value")) == pytest.approx(expected)
+        slider.press("End")
+        assert on_screen(page, "vertices") == info["vertices"]
+
+        page.evaluate("() => new Promise((done) => requestAnimationFrame(() => done()))")
+        page.screenshot(path=tmp_path / "viewer.png")
+        for overlay in ("#hud", "#controls"):
+            page.eval_on_selector(overlay, "node => { node.style.visibility = 'hidden'; }")
+        shot = page.locator("#canvas").screenshot(path=tmp_path / "render.png")
+        assert (tmp_path / "viewer.png").stat().st_size > 0 and len(shot) > 0
+        stats = page.evaluate(_IMAGE_STATS, base64.b64encode(shot).decode())
+        assert 0.02 < stats["away"] < 0.95, stats  # a shape, neither nothing nor all
+        assert stats["colours"] > 16, stats  # shaded, not a flat fill
+        assert page.errors == []

@@ -9,8 +9,17 @@ $(BIN)/qem: pyproject.toml
 	$(BIN)/pip install -q -e '.[dev]'
 	touch $(BIN)/qem
 
+# The web viewer's JavaScript packages (three.js, @msgpack/msgpack), pinned by the
+# lockfile and served from node_modules: no bundler, no CDN.
+WEB := client/web
+$(WEB)/node_modules/.package-lock.json: $(WEB)/package-lock.json
+	@command -v npm >/dev/null || { echo "npm not found: install Node.js >= 18 and npm" \
+		"(Debian: apt-get install -y nodejs npm), then run make install again" >&2; exit 1; }
+	cd $(WEB) && npm ci --no-audit --no-fund
+	touch $@
+
 .PHONY: install serve test lint bench
-install: $(BIN)/qem
+install: $(BIN)/qem $(WEB)/node_modules/.package-lock.json
 
 serve: install
 	$(BIN)/qem serve --demo

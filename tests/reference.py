@@ -149,8 +149,11 @@ def exact_triangle_set(vertices, faces) -> Counter:
 def undirected_edges(faces) -> tuple[np.ndarray, np.ndarray]:
     """(unique (E, 2) int64 low-high edges, (E,) how many faces use each)."""
     faces = np.asarray(faces, np.int64)
-    sides = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
-    return np.unique(np.sort(sides, axis=1), axis=0, return_counts=True)
+    sides = np.sort(np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
+    n = int(faces.max(initial=-1)) + 1
+    # One int64 key per edge: a 1-D unique is many times faster than unique(axis=0).
+    keys, counts = np.unique(sides[:, 0] * n + sides[:, 1], return_counts=True)
+    return np.stack([keys // max(n, 1), keys % max(n, 1)], axis=1), counts
 
 
 def fast_euler_characteristic(faces) -> int:

@@ -62,7 +62,10 @@ log = logging.getLogger("qem")
 
 
 def _client(args: argparse.Namespace) -> QemClient:
-    return QemClient(args.server, token=os.environ.get("QEM_TOKEN") or None)
+    try:
+        return QemClient(args.server, token=os.environ.get("QEM_TOKEN") or None)
+    except QemClientError as exc:  # a malformed --server / $QEM_SERVER
+        raise CliError(str(exc), EXIT_USAGE) from None
 
 
 # -- serve -----------------------------------------------------------------------------

@@ -94,6 +94,7 @@ class QemClient:
 
     base_url : e.g. ``http://127.0.0.1:8000``; token : bearer token for writes (upload,
     delete) when the server requires one; timeout : seconds per request (connect, read).
+    Raises QemClientError when `base_url` is not an http(s) URL with a host.
     """
 
     def __init__(
@@ -105,7 +106,7 @@ class QemClient:
         transport: httpx.BaseTransport | None = None,
     ) -> None:
         headers = {"Authorization": f"Bearer {token}"} if token else {}
-        self.base_url = base_url.rstrip("/")
+        self.base_url = _check_base_url(base_url)
         self._http = httpx.Client(
             base_url=self.base_url, headers=headers, timeout=timeout, transport=transport
         )
@@ -281,6 +282,21 @@ class QemClient:
     def delete(self, mesh_id: str) -> None:
         """Remove a mesh and its data from the server."""
         self._request("DELETE", f"/v1/meshes/{mesh_id}")
+
+
+def _check_base_url(base_url: str) -> str:
+    """`base_url` without its trailing slash; raises QemClientError unless it is an
+    http(s) URL with a host (httpx would raise InvalidURL, or treat ``host:port`` as a
+    scheme)."""
+    try:
+        url = httpx.URL(base_url)
+    except (httpx.InvalidURL, TypeError) as exc:
+        raise QemClientError(f"{base_url!r} is not a valid server URL ({exc})") from None
+    if url.scheme not in ("http", "https") or not url.host:
+        raise QemClientError(
+            f"{base_url!r} is not a valid server URL; give one like {DEFAULT_SERVER}"
+        )
+    return str(base_url).rstrip("/")
 
 
 def _raise_for_problem(response: httpx.Response) -> None:

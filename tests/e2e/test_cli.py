@@ -155,10 +155,10 @@ def test_unreachable_server(workdir):
         assert_clean_failure(result, 3, "cannot reach the qem-lod server", url)
 
 
-def test_malformed_server_url(workdir):
-    result = qem("ls", "--server", "not a url", cwd=workdir)
-    assert result.returncode != 0
-    assert "Traceback" not in result.stderr and result.stderr.strip()
+@pytest.mark.parametrize("url", ["not a url", "localhost:8000", "http://256.1.1.1", "ftp://x"])
+def test_malformed_server_url(workdir, url):
+    result = qem("ls", "--server", url, cwd=workdir)
+    assert_clean_failure(result, 2, "is not a valid server URL", repr(url))
 
 
 def test_writes_need_the_right_token(start_server, workdir):

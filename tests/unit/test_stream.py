@@ -1,0 +1,319 @@
+"""The vertex-split stream: frames encoded from a progressive mesh, cut from any chunking
+of the bytes, decoded onto the quantised coarse level, give the fine level; a damaged
+frame is refused with CorruptFileError.
+"""
+
+import struct
+import zlib
+
+import msgpack
+import numpy as np
+import pytest
+
+import qem_core
+from qem_core.codecs import decode_msgpack_mesh
+from qem_core.stream import (
+    FIRST_FRAME_SPLITS,
+    SplitStreamDecoder,
+    encode_split_frames,
+    grid_for,
+    iter_frames,
+)
+from tests.tiny_meshes import FIN, bumpy_grid, grid, icosphere, perforated_icosphere
+
+
+@pytest.fixture(scope="module")
+def pm():
+    return qem_core.build(*perforated_icosphere(2, holes=3, seed=7))
+
+
+@pytest.fixture(scope="module")
+def big_pm():
+    """More than FIRST_FRAME_SPLITS + 2 * FIRST_FRAME_SPLITS splits: several frames."""
+    pm = qem_core.build(*icosphere(4, jitter=0.02, seed=2))
+    assert pm.n_full - pm.n_base > 3 * FIRST_FRAME_SPLITS
+    return pm
+
+
+def _decode(pm, n1, n2, bits=16, chunks=None, **options):
+    """Decode the stream n1 -> n2 onto quantised lod(n1); returns the decoder."""
+    grid = grid_for(pm, bits)
+    vertices, faces = pm.lod(n1)
+    decoder = SplitStreamDecoder(grid.quantise(vertices), faces)
+    stream = b"".join(encode_split_frames(pm, n1, n2, bits=bits, **options))
+    for payload in iter_frames(chunks(stream) if chunks else [stream]):
+        decoder.feed(payload)
+    return decoder
+
+
+def _check_decoded(pm, decoder, n2, bits=16):
+    grid = grid_for(pm, bits)
+    vertices, faces = pm.lod(n2)
+    assert np.array_equal(decoder.faces, faces)
+    # The integers are exactly those of lod(n2) quantised on the same grid ...
+    assert np.array_equal(decoder.quantised, grid.quantise(vertices))
+    # ... so the positions are within half a grid step (and a rounding ulp).
+    error = np.abs(decoder.vertices - vertices)
+    assert np.all(error <= grid.step / 2 * (1 + 1e-9))
+
+
+@pytest.mark.parametrize("bits", [8, 12, 16, 24])
+def test_stream_refines_the_coarse_level_into_the_fine_one(pm, bits):
+    picks = np.unique(np.linspace(pm.n_base, pm.n_full, 6).astype(int)).tolist()
+    for n1 in picks:
+        for n2 in picks:
+            if n1 < n2:
+                _check_decoded(pm, _decode(pm, n1, n2, bits), n2, bits)
+
+
+@pytest.mark.parametrize(
+    "mesh", [FIN, grid(5), bumpy_grid(6, seed=1)], ids=["fin", "flat_grid", "bumpy_grid"]
+)
+def test_stream_of_awkward_meshes(mesh):
+    """A non-manifold fin (explicit face codes), a flat grid (an axis with no extent)."""
+    pm = qem_core.build(*mesh)
+    _check_decoded(pm, _decode(pm, pm.n_base, pm.n_full), pm.n_full)
+
+
+def test_empty_range_has_no_frames(pm):
+    n = pm.n_base + 10
+    assert list(encode_split_frames(pm, n, n)) == []
+    assert list(iter_frames([])) == [] and list(iter_frames([b""])) == []
+
+
+def test_requests_are_clamped_and_must_go_from_coarse_to_fine(pm):
+    clamped = _decode(pm, -10, 10**9)
+    _check_decoded(pm, clamped, pm.n_full)
+    with pytest.raises(qem_core.InvalidOptionsError, match="must not exceed"):
+        list(encode_split_frames(pm, pm.n_full, pm.n_base))
+    for bits in (7, 25, 16.0):
+        with pytest.raises(qem_core.InvalidOptionsError, match="bits"):
+            list(encode_split_frames(pm, pm.n_base, pm.n_full, bits=bits))
+
+
+def test_decoder_has_no_grid_before_its_first_frame(pm):
+    decoder = SplitStreamDecoder(np.zeros((pm.n_base, 3), np.int64), pm.lod(pm.n_base)[1])
+    with pytest.raises(qem_core.InvalidOptionsError, match="grid"):
+        decoder.vertices  # noqa: B018
+
+
+def test_big_range_comes_in_frames_that_double_in_size(big_pm):
+    """Frames hold 512, 1024, 2048, ... splits up to the cap (the rule in stream.py), so
+    the number of splits per frame is known by hand from the range."""
+    n1, n2 = big_pm.n_base, big_pm.n_full
+    frames = list(encode_split_frames(big_pm, n1, n2))
+    sizes = []
+    for frame in frames:
+        (length,) = struct.unpack_from("<I", frame)
+        assert length == len(frame) - 4
+        body = msgpack.unpackb(zlib.decompress(frame[4:]))
+        sizes.append(body["n_to"] - body["n_from"])
+    expected, left, size = [], n2 - n1, FIRST_FRAME_SPLITS
+    while left:
+        expected.append(min(size, left))
+        left -= expected[-1]
+        size *= 2
+    assert sizes == expected and len(sizes) >= 3
+    capped = list(encode_split_frames(big_pm, n1, n2, splits_per_frame=300))
+    assert len(capped) == -(-(n2 - n1) // 300)
+
+
+@pytest.mark.parametrize("chunking", ["one_byte", "uneven", "frame_by_frame"])
+def test_any_chunking_of_the_bytes_decodes_the_same(big_pm, chunking):
+    rng = np.random.default_rng(0)
+
+    def chunks(stream):
+        if chunking == "one_byte":
+            # Byte by byte is slow in Python for the whole stream: its first 20 kB only,
+            # then the rest in one piece (the frame boundaries fall inside both parts).
+            yield from (stream[i : i + 1] for i in range(min(len(stream), 20_000)))
+            yield stream[20_000:]
+        elif chunking == "uneven":
+            cuts = np.sort(rng.integers(0, len(stream), 40))
+            yield from (stream[a:b] for a, b in zip([0, *cuts], [*cuts, len(stream)], strict=True))
+        else:
+            yield stream
+
+    n1, n2 = big_pm.n_base + 7, big_pm.n_full - 3
+    decoder = _decode(big_pm, n1, n2, chunks=chunks)
+    _check_decoded(big_pm, decoder, n2)
+    if chunking == "frame_by_frame":
+        frames = list(encode_split_frames(big_pm, n1, n2))
+        assert len(list(iter_frames(frames))) == len(frames) > 1
+
+
+def test_msgpack_level_on_the_stream_grid_has_the_streams_integers(pm):
+    """A viewer fetches lod(n1) as quantised msgpack over pm.position_bounds, then
+    refines it with the stream: the msgpack integers are grid_for(pm).quantise's, and the
+    refined mesh's positions equal those of lod(n2) fetched the same way, to the bit."""
+    grid = grid_for(pm, 16)
+    n1, n2 = pm.n_base + 5, pm.n_full - 5
+    fetched = {}
+    for n in (n1, n2):
+        vertices, faces = pm.lod(n)
+        blob = qem_core.encode_mesh(
+            vertices, faces, "msgpack", quantize_bits=16, grid_box=pm.position_bounds
+        )
+        message = msgpack.unpackb(blob)
+        integers = np.frombuffer(message["positions"], "<u2").reshape(-1, 3)
+        assert np.array_equal(integers, grid.quantise(vertices))
+        fetched[n] = integers, decode_msgpack_mesh(blob)
+        # Read back through load_mesh and put on the stream's grid again: the same integers.
+        loaded = qem_core.load_mesh(blob, format="msgpack")
+        assert np.array_equal(grid.quantise(loaded.vertices), grid.quantise(vertices))
+        assert np.array_equal(loaded.faces, faces)
+    decoder = SplitStreamDecoder(fetched[n1][0], fetched[n1][1].faces)
+    for payload in iter_frames(encode_split_frames(pm, n1, n2)):
+        decoder.feed(payload)
+    assert np.array_equal(decoder.quantised, fetched[n2][0])
+    assert np.array_equal(decoder.faces, fetched[n2][1].faces)
+    assert np.array_equal(decoder.vertices, fetched[n2][1].vertices)
+
+
+# -- damaged streams -------------------------------------------------------------------
+
+
+def _frames(pm, n1=None, n2=None):
+    return list(
+        encode_split_frames(pm, pm.n_base if n1 is None else n1, pm.n_full if n2 is None else n2)
+    )
+
+
+def _fresh_decoder(pm, n=None):
+    n = pm.n_base if n is None else n
+    vertices, faces = pm.lod(n)
+    return SplitStreamDecoder(grid_for(pm).quantise(vertices), faces)
+
+
+def test_a_truncated_stream_is_refused(pm):
+    stream = b"".join(_frames(pm))
+    for cut in (1, 3, 4, 5, len(stream) // 2, len(stream) - 1):
+        with pytest.raises(qem_core.CorruptFileError, match="ends inside a frame"):
+            list(iter_frames([stream[:cut]]))
+
+
+def test_a_frame_declaring_a_huge_length_is_refused_at_once():
+    with pytest.raises(qem_core.CorruptFileError, match="over the limit"):
+        next(iter_frames([struct.pack("<I", 0xFFFFFFFF) + b"x"]))
+
+
+def test_every_flipped_byte_of_a_frame_is_refused_or_harmless(pm):
+    """zlib's Adler-32 and the frame's own checks catch a flipped byte, except where
+    deflate ignores bits (padding of the last block): then the inflated frame is the same
+    and so is the result. Never a wrong mesh, never another exception."""
+    n2 = pm.n_base + 20
+    payload = next(iter_frames(_frames(pm, pm.n_base, n2)))
+    expected_faces = pm.lod(n2)[1]
+    refused = 0
+    for position in range(len(payload)):
+        damaged = bytearray(payload)
+        damaged[position] ^= 0x04
+        decoder = _fresh_decoder(pm)
+        try:
+            decoder.feed(bytes(damaged))
+        except qem_core.CorruptFileError:
+            refused += 1
+            continue
+        assert zlib.decompress(bytes(damaged)) == zlib.decompress(payload)
+        assert np.array_equal(decoder.faces, expected_faces)
+    assert refused > 0.95 * len(payload)
+
+
+def test_every_truncated_frame_is_refused(pm):
+    payload = next(iter_frames(_frames(pm, pm.n_base, pm.n_base + 20)))
+    for length in range(len(payload)):
+        with pytest.raises(qem_core.CorruptFileError):
+            _fresh_decoder(pm).feed(payload[:length])
+
+
+def test_frames_out_of_order_or_for_another_level_are_refused(pm):
+    frames = list(iter_frames(_frames(pm, pm.n_base, pm.n_base + 40)))
+    one_frame = next(iter_frames(_frames(pm, pm.n_base + 10, pm.n_base + 20)))
+    with pytest.raises(qem_core.CorruptFileError, match="refines"):
+        _fresh_decoder(pm).feed(one_frame)
+    decoder = _fresh_decoder(pm)
+    decoder.feed(frames[0])
+    with pytest.raises(qem_core.CorruptFileError, match="refines"):
+        decoder.feed(frames[0])  # the same frame twice
+
+
+def _rewrite(payload: bytes, change) -> bytes:
+    """A well-compressed frame whose msgpack body is change(body)."""
+    body = msgpack.unpackb(zlib.decompress(payload))
+    return zlib.compress(msgpack.packb(change(body)))
+
+
+def _with(**fields):
+    return lambda body: {**body, **fields}
+
+
+def _without(key):
+    return lambda body: {k: v for k, v in body.items() if k != key}
+
+
+def _field_bytes(key, transform):
+    def change(body):
+        return {**body, key: transform(body[key])}
+
+    return change
+
+
+def _planes_u4(values):
+    raw = np.asarray(values, "<u4")
+    return raw.view(np.uint8).reshape(-1, 4).T.tobytes()
+
+
+@pytest.mark.parametrize("change", [
+    _with(format="qem-mesh-msgpack"),
+    _with(version=2),
+    _with(version="1"),
+    _without("split_back"),
+    _without("grid"),
+    _with(n_to=10**9),
+    _with(n_from=-1),
+    _with(n_from=3.5),
+    _with(n_to="many"),
+    lambda body: {**body, "n_from": float(body["n_from"]), "n_to": float(body["n_to"])},
+    _with(faces_from=0),
+    _with(grid=[0.0, 1.0]),
+    _with(grid="origin"),
+    _with(grid=[0.0, 0.0, 0.0, 1.0, float("nan"), 1.0]),
+    _with(bits="sixteen"),
+    _with(n_new_faces=10**6),
+    _with(n_relabels=-1),
+    _with(n_explicit=10**6),
+    _field_bytes("split_back", lambda b: b[:-1]),
+    _field_bytes("face_codes", lambda b: b"\x07" * len(b)),
+    _field_bytes("new_face_counts", lambda b: b"\xff" * len(b)),
+    # A split of a vertex that does not exist yet (n_from + k - back < 0).
+    _field_bytes("split_back", lambda b: b"\xff" * len(b)),
+    # New faces whose third corner lies beyond the vertices that exist.
+    _field_bytes("face_corners_back", lambda b: _planes_u4(np.full(len(b) // 4, 2**31))),
+    _field_bytes("relabel_faces_back", lambda b: b"\xff" * len(b)),
+    lambda body: [body],
+    lambda body: 42,
+])  # fmt: skip
+def test_a_frame_whose_content_lies_is_refused(pm, change):
+    payload = next(iter_frames(_frames(pm, pm.n_base, pm.n_base + 20)))
+    decoder = _fresh_decoder(pm)
+    faces_before, quantised_before = decoder.faces.copy(), decoder.quantised.copy()
+    with pytest.raises(qem_core.CorruptFileError):
+        decoder.feed(_rewrite(payload, change))
+    # A refused frame leaves the decoder as it was: the next good frame still applies.
+    assert np.array_equal(decoder.faces, faces_before)
+    assert np.array_equal(decoder.quantised, quantised_before)
+    decoder.feed(payload)
+    vertices, faces = pm.lod(pm.n_base + 20)
+    assert np.array_equal(decoder.faces, faces)
+
+
+def test_a_frame_that_is_not_deflate_or_not_msgpack_is_refused(pm):
+    decoder = _fresh_decoder(pm)
+    for payload in (
+        b"",
+        b"not deflate",
+        zlib.compress(b"\xc1 not msgpack"),
+        zlib.compress(msgpack.packb({"format": "qem-splits"})),
+    ):
+        with pytest.raises(qem_core.CorruptFileError):
+            decoder.feed(payload)

@@ -9,6 +9,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -35,17 +36,35 @@ def meshes(draw):
         n = draw(st.integers(3, 8))
         vertices, faces = grid(n)
         vertices = np.asarray(vertices, float)
-        vertices[:, 2] = draw(st.floats(0.0, 2.0)) * rng.uniform(-1, 1, n * n)
+        # Heights of 1e-110..1e-160 crash the exact mode: see the xfail below.
+        amplitude = draw(st.one_of(st.just(0.0), st.floats(1e-3, 2.0)))
+        vertices[:, 2] = amplitude * rng.uniform(-1, 1, n * n)
     return np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
 
 
-options = st.fixed_dictionaries({"error_mode": st.sampled_from(["additive", "exact"])})
+options = st.fixed_dictionaries(
+    {
+        "error_mode": st.sampled_from(["additive", "exact"]),
+        # Garland's pair contraction: splits that are not manifold-local.
+        "pair_threshold": st.sampled_from([0.0, 0.1]),
+    }
+)
+# Without topology preservation too. Its coarsest levels break the "every vertex used"
+# promise (see the xfail in tests/unit/test_progressive.py), so only the properties
+# that do not look at that use it.
+any_options = st.fixed_dictionaries(
+    {
+        "error_mode": st.sampled_from(["additive", "exact"]),
+        "pair_threshold": st.sampled_from([0.0, 0.1]),
+        "preserve_topology": st.booleans(),
+    }
+)
 
 
 @st.composite
-def built(draw):
+def built(draw, build_options=options):
     vertices, faces = draw(meshes())
-    return qem_core.build(vertices, faces, draw(options))
+    return qem_core.build(vertices, faces, draw(build_options))
 
 
 def _level(draw, pm) -> int:
@@ -67,7 +86,7 @@ def test_lod_has_exactly_the_requested_number_of_vertices(data):
 @PROPERTY_SETTINGS
 @given(data=st.data())
 def test_splits_refine_one_level_into_another(data):
-    pm = data.draw(built())
+    pm = data.draw(built(any_options))
     n1 = _level(data.draw, pm)
     n2 = data.draw(st.integers(n1, pm.n_full))
     vertices, faces = qem_core.apply_splits(*pm.lod(n1), pm.splits(n1, n2))
@@ -79,7 +98,7 @@ def test_splits_refine_one_level_into_another(data):
 @PROPERTY_SETTINGS
 @given(data=st.data())
 def test_a_saved_and_loaded_file_serves_the_same_levels(data):
-    pm = data.draw(built())
+    pm = data.draw(built(any_options))
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "mesh.qpm"
         pm.save(path)
@@ -114,7 +133,7 @@ def test_every_codec_round_trips_a_level(data):
 
 
 @PROPERTY_SETTINGS
-@given(mesh=meshes(), build_options=options)
+@given(mesh=meshes(), build_options=any_options)
 def test_building_twice_gives_byte_identical_files(mesh, build_options):
     blobs = []
     with tempfile.TemporaryDirectory() as folder:
@@ -123,3 +142,22 @@ def test_building_twice_gives_byte_identical_files(mesh, build_options):
             qem_core.build(*mesh, build_options).save(path)
             blobs.append(path.read_bytes())
     assert blobs[0] == blobs[1]
+
+
+@pytest.mark.xfail(
+    strict=True,
+    raises=ZeroDivisionError,
+    reason=(
+        "bug (found by the height-field strategy): a unit grid with heights around 1e-118 "
+        "makes the exact error mode's fill_heap kernel (qem_core/simplify.py) divide by "
+        "zero; heights 1e-110..1e-160 all do, additive mode and 0 or 1e-200 do not. Valid "
+        "finite input must build, or be refused with a qem_core error"
+    ),
+)
+def test_an_almost_flat_grid_builds_in_exact_mode():
+    vertices, faces = grid(3)
+    vertices = np.asarray(vertices, float)
+    vertices[:, 2] = 1e-118 * np.array([2.0, -3.4, -6.7, -7.1, 4.6, 6.0, 1.6, 3.4, 0.6])
+    pm = qem_core.build(vertices, faces, {"error_mode": "exact"})
+    full_vertices, _ = pm.lod(pm.n_full)
+    assert np.array_equal(full_vertices[pm.vertex_map], vertices)

@@ -15,6 +15,7 @@ progressive mesh raise CorruptFileError. docs/qpm.md documents the format.
 
 from __future__ import annotations
 
+import math
 import os
 import struct
 import tempfile
@@ -104,11 +105,11 @@ def load(source) -> ProgressiveMesh:
     for name, (dtype, ndim) in _ARRAYS.items():
         if name not in entries:
             raise CorruptFileError(f".qpm file lacks the array {name!r}")
-        stored_dtype, shape, offset = entries[name]
-        shape = tuple(int(s) for s in shape)
-        if stored_dtype != dtype or len(shape) != ndim or min(shape, default=0) < 0:
+        stored_dtype, shape, offset = _array_entry(name, entries[name])
+        if stored_dtype != dtype or len(shape) != ndim:
             raise CorruptFileError(f".qpm array {name!r} has dtype {stored_dtype} shape {shape}")
-        nbytes = int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
+        # Python integers: a huge declared shape must not wrap around in int64.
+        nbytes = math.prod(shape) * np.dtype(dtype).itemsize
         if not 0 <= offset <= data_length - nbytes:
             raise CorruptFileError(f".qpm array {name!r} lies outside the file")
         arrays[name] = np.frombuffer(
@@ -118,6 +119,20 @@ def load(source) -> ProgressiveMesh:
             offset=data_start + offset,
         ).reshape(shape)
     return _checked_progressive_mesh(arrays, metadata)
+
+
+def _array_entry(name: str, entry) -> tuple[object, tuple[int, ...], int]:
+    """(dtype, shape, offset) of a header entry; a malformed one (wrong length, a shape
+    that is not non-negative integers, an offset that is not an integer) would otherwise
+    escape as ValueError or TypeError, so it is refused here."""
+    if (
+        len(entry) != 3
+        or not isinstance(entry[1], list)
+        or not all(isinstance(s, int) and s >= 0 for s in entry[1])
+        or not isinstance(entry[2], int)
+    ):
+        raise CorruptFileError(f".qpm array {name!r} has a malformed header entry")
+    return entry[0], tuple(entry[1]), entry[2]
 
 
 def _checked_progressive_mesh(arrays: dict, metadata: dict) -> ProgressiveMesh:
@@ -143,8 +158,14 @@ def _checked_progressive_mesh(arrays: dict, metadata: dict) -> ProgressiveMesh:
         arrays["relabel_offsets"],
         arrays["relabel_faces"],
     )
-    if "bbox" not in metadata:
+    # A metadata that is not a map, or a bbox that is not 2 x 3 numbers, would fail later
+    # (in ProgressiveMesh or pm.bbox) with an unrelated error.
+    if not isinstance(metadata, dict) or "bbox" not in metadata:
         raise CorruptFileError(".qpm metadata lacks the bounding box")
+    try:
+        np.asarray(metadata["bbox"], np.float64).reshape(2, 3)
+    except (TypeError, ValueError):
+        raise CorruptFileError(".qpm bounding box is not 2 x 3 numbers") from None
     vertex_map = arrays.pop("vertex_map")
     pm = ProgressiveMesh(**arrays, metadata=metadata)
     pm.vertex_map = vertex_map

@@ -209,6 +209,10 @@ class SplitStreamDecoder:
                 raise CorruptFileError(f"split frame version {body['version']} is too new")
             n_from, n_to, faces_from = body["n_from"], body["n_to"], body["faces_from"]
             grid_values = np.asarray(body["grid"], np.float64)
+            # Checked here: a short or non-finite grid would only fail later, when the
+            # caller reads `vertices`, with an unrelated error.
+            if grid_values.shape != (6,) or not np.isfinite(grid_values).all():
+                raise CorruptFileError("split frame: 'grid' must be 6 finite numbers")
             grid = Grid(grid_values[:3], grid_values[3:], int(body["bits"]))
             k = n_to - n_from
             n_new, n_relabels = body["n_new_faces"], body["n_relabels"]

@@ -83,7 +83,12 @@ def write_msgpack(
         message["position_encoding"] = "f32"
         message["positions"] = vertices.astype("<f4").tobytes()
     else:
-        if isinstance(quantize_bits, bool) or quantize_bits not in range(1, 17):
+        # `in range` alone would take 8.0 (8.0 == 8), which Grid's bit shift refuses.
+        if (
+            not isinstance(quantize_bits, int)
+            or isinstance(quantize_bits, bool)
+            or (quantize_bits not in range(1, 17))
+        ):
             raise InvalidOptionsError(
                 f"quantize_bits={quantize_bits!r}: use None (float32) or 1..16 (16 is usual)"
             )
@@ -139,7 +144,8 @@ def read_msgpack(data: bytes) -> Mesh:
         vertices = _array(message, "positions", "<f4", n_vertices * 3).astype(np.float64)
     elif encoding == "u16":
         bits = message.get("position_bits")
-        if isinstance(bits, bool) or bits not in range(1, 17):
+        # A float 8.0 passes `in range` and then breaks Grid's bit shift (TypeError).
+        if not isinstance(bits, int) or isinstance(bits, bool) or bits not in range(1, 17):
             raise MeshFormatError(f"'position_bits' must be 1..16, got {bits!r}")
         quantised = _array(message, "positions", "<u2", n_vertices * 3).reshape(-1, 3)
         vertices = Grid.over_box(bbox[:3], bbox[3:], bits).dequantise(quantised)

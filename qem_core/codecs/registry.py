@@ -8,6 +8,7 @@ every loaded mesh goes through.
 
 from __future__ import annotations
 
+import io
 import os
 from collections.abc import Callable
 from typing import BinaryIO
@@ -163,6 +164,10 @@ def _read_source(source: MeshSource) -> tuple[bytes, str | None]:
     if isinstance(source, str | os.PathLike):
         with open(source, "rb") as file:
             return file.read(), os.path.basename(os.fspath(source))
+    if isinstance(source, io.TextIOBase):
+        # Checked before reading: a text-mode read of a binary file raises
+        # UnicodeDecodeError, not the clear error below.
+        raise MeshFormatError("the file object must be opened in binary mode ('rb')")
     if hasattr(source, "read"):
         data = source.read()
         if not isinstance(data, bytes | bytearray):

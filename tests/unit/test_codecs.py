@@ -1,0 +1,566 @@
+"""Mesh codecs: every writer round-trips through load_mesh, and every reader refuses a
+bad file with MeshFormatError or InvalidMeshError (never IndexError, ValueError,
+MemoryError, a crash or a hang).
+
+The precision each format promises, from qem_core/codecs: PLY, OBJ, GLB and msgpack
+"f32" store float32 positions (so they read back as the float32 rounding of the input,
+exactly); msgpack "u16" stores grid integers (within half a grid step); PLY stores colours
+as uchar (within half of 1/255).
+"""
+
+import io
+import struct
+
+import msgpack
+import numpy as np
+import pytest
+
+from qem_core import InvalidMeshError, InvalidOptionsError, MeshFormatError, encode_mesh, load_mesh
+from tests.tiny_meshes import OCTAHEDRON, icosphere
+
+WRITTEN = ["ply", "obj", "glb", "msgpack"]
+READ = ["ply", "obj", "stl", "off", "glb", "msgpack"]
+PNG = b"\x89PNG\r\n\x1a\n" + b"\0" * 32  # only the magic bytes matter to the codecs
+
+
+def _sphere():
+    vertices, faces = icosphere(1, jitter=0.1, seed=4)
+    normals = vertices / np.linalg.norm(vertices, axis=1, keepdims=True)
+    rng = np.random.default_rng(0)
+    attributes = {
+        "normal": normals.astype(np.float32),
+        "color": rng.uniform(0, 1, (len(vertices), 4)).astype(np.float32),
+        "uv": rng.uniform(0, 1, (len(vertices), 2)).astype(np.float32),
+    }
+    return vertices, faces, attributes
+
+
+def _f32(values):
+    return np.asarray(values, np.float32).astype(np.float64)
+
+
+# -- writers round-trip ----------------------------------------------------------------
+
+
+@pytest.mark.parametrize("fmt", WRITTEN)
+def test_geometry_round_trips(fmt):
+    vertices, faces, _ = _sphere()
+    blob = encode_mesh(vertices, faces, fmt)
+    mesh = load_mesh(blob, format=fmt)
+    assert mesh.vertices.dtype == np.float64 and mesh.faces.dtype == np.int32
+    if fmt == "obj":
+        # 9 significant digits name each float32 uniquely, but the reader parses them as
+        # float64: exact once rounded back to float32, within 1e-8 relative before.
+        assert np.array_equal(mesh.vertices.astype(np.float32), vertices.astype(np.float32))
+        np.testing.assert_allclose(mesh.vertices, _f32(vertices), rtol=1e-8)
+    else:
+        assert np.array_equal(mesh.vertices, _f32(vertices))
+    assert np.array_equal(mesh.faces, faces)
+    # The content alone tells the format (no name, no format=).
+    sniffed = load_mesh(blob)
+    assert np.array_equal(sniffed.vertices, mesh.vertices)
+    assert np.array_equal(sniffed.faces, mesh.faces)
+
+
+@pytest.mark.parametrize("fmt", WRITTEN)
+def test_from_a_path_and_a_file_object(fmt, tmp_path):
+    vertices, faces, _ = _sphere()
+    blob = encode_mesh(vertices, faces, fmt)
+    path = tmp_path / f"sphere.{'mpk' if fmt == 'msgpack' else fmt}"
+    path.write_bytes(blob)
+    for source in (path, str(path)):
+        mesh = load_mesh(source)
+        assert mesh.name == path.name and np.array_equal(mesh.faces, faces)
+    with open(path, "rb") as file:
+        assert np.array_equal(load_mesh(file).faces, faces)
+    assert np.array_equal(load_mesh(io.BytesIO(blob), format=fmt).faces, faces)
+    with open(path) as text_file, pytest.raises(MeshFormatError, match="binary mode"):
+        load_mesh(text_file)
+
+
+@pytest.mark.parametrize("fmt", WRITTEN)
+def test_attributes_round_trip(fmt):
+    vertices, faces, attributes = _sphere()
+    mesh = load_mesh(encode_mesh(vertices, faces, fmt, attributes), format=fmt)
+    got = mesh.vertex_attributes
+    assert set(got) == {"normal", "color", "uv"}
+    assert all(value.dtype == np.float32 for value in got.values())
+    np.testing.assert_allclose(got["normal"], attributes["normal"], atol=1e-6)
+    np.testing.assert_allclose(got["uv"], attributes["uv"], atol=1e-6)  # GLB flips v twice
+    if fmt == "ply":
+        np.testing.assert_allclose(got["color"], attributes["color"], atol=0.5 / 255 + 1e-7)
+    elif fmt == "obj":
+        # OBJ's "v x y z r g b" has no alpha.
+        np.testing.assert_array_equal(got["color"], attributes["color"][:, :3])
+    else:
+        np.testing.assert_array_equal(got["color"], attributes["color"])
+
+
+@pytest.mark.parametrize("fmt", ["glb", "msgpack"])
+def test_texture_round_trips(fmt):
+    vertices, faces, attributes = _sphere()
+    mesh = load_mesh(encode_mesh(vertices, faces, fmt, attributes, PNG), format=fmt)
+    assert mesh.texture == PNG
+
+
+def test_glb_normals_are_written_unit_length():
+    vertices, faces, attributes = _sphere()
+    attributes["normal"] = 3 * attributes["normal"]
+    attributes["normal"][0] = 0  # a zero normal becomes +z
+    mesh = load_mesh(encode_mesh(vertices, faces, "glb", attributes))
+    normal = mesh.vertex_attributes["normal"]
+    np.testing.assert_allclose(np.linalg.norm(normal, axis=1), 1, atol=1e-6)
+    assert normal[0].tolist() == [0, 0, 1]
+
+
+def test_msgpack_float_and_name():
+    vertices, faces, _ = _sphere()
+    mesh = load_mesh(encode_mesh(vertices, faces, "msgpack", name="sphere.ply"))
+    assert np.array_equal(mesh.vertices, _f32(vertices))
+    assert mesh.name == "sphere.ply"
+
+
+@pytest.mark.parametrize("bits", [1, 4, 10, 16])
+def test_msgpack_quantised_is_within_half_a_grid_step(bits):
+    vertices, faces, _ = _sphere()
+    blob = encode_mesh(vertices, faces, "msgpack", quantize_bits=bits)
+    message = msgpack.unpackb(blob)
+    assert message["position_encoding"] == "u16" and message["position_bits"] == bits
+    mesh = load_mesh(blob)
+    low, high = vertices.min(axis=0), vertices.max(axis=0)
+    step = (high - low) / (2**bits - 1)
+    assert np.all(np.abs(mesh.vertices - vertices) <= step / 2 * (1 + 1e-9))
+    assert np.array_equal(mesh.faces, faces)
+
+
+def test_msgpack_quantised_over_a_given_box():
+    vertices, faces, _ = _sphere()
+    box = (np.full(3, -2.0), np.full(3, 2.0))
+    message = msgpack.unpackb(
+        encode_mesh(vertices, faces, "msgpack", quantize_bits=16, grid_box=box)
+    )
+    assert message["bbox"] == [-2.0] * 3 + [2.0] * 3
+    integers = np.frombuffer(message["positions"], "<u2").reshape(-1, 3)
+    # By hand: q = round((x + 2) / 4 * 65535).
+    assert np.array_equal(integers, np.rint((vertices + 2) / 4 * 65535))
+    with pytest.raises(InvalidOptionsError, match="grid_box"):
+        encode_mesh(vertices, faces, "msgpack", quantize_bits=16, grid_box=(box[0], box[0]))
+
+
+def _strip(n_vertices):
+    """A long strip of triangles with n_vertices vertices (n_vertices - 2 faces)."""
+    i = np.arange(n_vertices)
+    vertices = np.stack([i // 2, i % 2, np.zeros(n_vertices)], axis=1).astype(float)
+    a = np.arange(n_vertices - 2)
+    faces = np.where(
+        (a % 2 == 0)[:, None], np.stack([a, a + 1, a + 2], 1), np.stack([a, a + 2, a + 1], 1)
+    )
+    return vertices, faces
+
+
+@pytest.mark.parametrize("n_vertices, index_type", [
+    (256, "u8"), (257, "u16"), (65536, "u16"), (65537, "u32"),
+])  # fmt: skip
+def test_msgpack_indices_use_the_smallest_type(n_vertices, index_type):
+    """From the format: u8 for n <= 256, u16 for n <= 65536, else u32."""
+    vertices, faces = _strip(n_vertices)
+    blob = encode_mesh(vertices, faces, "msgpack")
+    assert msgpack.unpackb(blob)["index_type"] == index_type
+    assert np.array_equal(load_mesh(blob).faces, faces)
+
+
+@pytest.mark.parametrize("n_vertices", [65535, 65536])
+def test_glb_with_many_vertices_round_trips(n_vertices):
+    """Indices are u16 up to 65535 vertices, u32 above (65535 is glTF's restart value)."""
+    vertices, faces = _strip(n_vertices)
+    mesh = load_mesh(encode_mesh(vertices, faces, "glb"))
+    assert np.array_equal(mesh.faces, faces)
+
+
+def test_encode_refuses_bad_requests():
+    vertices, faces = OCTAHEDRON
+    with pytest.raises(InvalidOptionsError, match="cannot write format"):
+        encode_mesh(vertices, faces, "stl")
+    with pytest.raises(InvalidOptionsError, match="msgpack"):
+        encode_mesh(vertices, faces, "ply", quantize_bits=16)
+    for bits in (0, 17, True, 8.0):
+        with pytest.raises(InvalidOptionsError, match="quantize_bits"):
+            encode_mesh(vertices, faces, "msgpack", quantize_bits=bits)
+    with pytest.raises(InvalidMeshError, match="index"):
+        encode_mesh(vertices, faces + 1, "ply")
+    with pytest.raises(InvalidMeshError, match="attribute"):
+        encode_mesh(vertices, faces, "ply", {"colour": np.zeros((6, 3))})
+    with pytest.raises(InvalidMeshError, match="shape"):
+        encode_mesh(vertices, faces, "ply", {"normal": np.zeros((5, 3))})
+    with pytest.raises(InvalidMeshError, match="NaN"):
+        encode_mesh(vertices, faces, "obj", {"uv": np.full((6, 2), np.nan)})
+
+
+def test_glb_loads_in_trimesh():
+    trimesh = pytest.importorskip("trimesh")
+    vertices, faces, attributes = _sphere()
+    blob = encode_mesh(vertices, faces, "glb", attributes, PNG)
+    mesh = trimesh.load(io.BytesIO(blob), file_type="glb", force="mesh", process=False)
+    assert np.array_equal(mesh.vertices, _f32(vertices))
+    assert np.array_equal(mesh.faces, faces)
+    # trimesh flips glTF's v back to a bottom-left origin, as qem_core's Mesh has it.
+    np.testing.assert_allclose(mesh.visual.uv, attributes["uv"], atol=1e-6)
+    plain = trimesh.load(
+        io.BytesIO(encode_mesh(vertices, faces, "glb")),
+        file_type="glb",
+        force="mesh",
+        process=False,
+    )
+    assert np.array_equal(plain.faces, faces)
+
+
+# -- readers of formats qem_core does not write ------------------------------------------
+
+
+def _stl_binary(vertices, faces, declared=None):
+    facets = np.zeros(len(faces), [("n", "<f4", 3), ("c", "<f4", (3, 3)), ("a", "<u2")])
+    facets["c"] = np.asarray(vertices)[np.asarray(faces)]
+    count = len(faces) if declared is None else declared
+    return b"\0" * 80 + struct.pack("<I", count) + facets.tobytes()
+
+
+def _stl_ascii(vertices, faces):
+    lines = ["solid test"]
+    for tri in np.asarray(vertices)[np.asarray(faces)]:
+        lines += ["facet normal 0 0 0", "outer loop"]
+        lines += [f"vertex {x!r} {y!r} {z!r}" for x, y, z in tri.tolist()]
+        lines += ["endloop", "endfacet"]
+    return ("\n".join(lines + ["endsolid test"]) + "\n").encode()
+
+
+def _off(vertices, faces, header="OFF"):
+    lines = [header, f"{len(vertices)} {len(faces)} 0"]
+    lines += [" ".join(map(repr, v)) for v in np.asarray(vertices).tolist()]
+    lines += ["3 " + " ".join(map(str, f)) for f in np.asarray(faces).tolist()]
+    return ("\n".join(lines) + "\n").encode()
+
+
+def _ply_ascii(vertices, faces):
+    lines = [
+        "ply",
+        "format ascii 1.0",
+        f"element vertex {len(vertices)}",
+        "property float x",
+        "property float y",
+        "property float z",
+        f"element face {len(faces)}",
+        "property list uchar int vertex_indices",
+        "end_header",
+    ]
+    lines += [" ".join(map(repr, v)) for v in np.asarray(vertices).tolist()]
+    lines += ["3 " + " ".join(map(str, f)) for f in np.asarray(faces).tolist()]
+    return ("\n".join(lines) + "\n").encode()
+
+
+@pytest.mark.parametrize("maker", [_stl_binary, _stl_ascii])
+def test_stl_is_read_as_a_soup(maker):
+    vertices, faces = OCTAHEDRON
+    mesh = load_mesh(maker(vertices, faces), format="stl")
+    # Three vertices per facet, as stored; welding is prepare_mesh's job.
+    assert np.array_equal(mesh.vertices, vertices[faces.reshape(-1)])
+    assert np.array_equal(mesh.faces, np.arange(24).reshape(8, 3))
+    assert np.array_equal(load_mesh(maker(vertices, faces)).faces, mesh.faces)  # sniffed
+
+
+def test_off_and_ascii_ply_are_read():
+    vertices, faces = OCTAHEDRON
+    for blob in (_off(vertices, faces), _ply_ascii(vertices, faces)):
+        mesh = load_mesh(blob)
+        assert np.array_equal(mesh.vertices, vertices)
+        assert np.array_equal(mesh.faces, faces)
+
+
+def test_polygons_are_fan_triangulated():
+    """A quad (0 1 2 3) becomes (0 1 2) and (0 2 3), by hand."""
+    square = b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n"
+    assert load_mesh(square, format="obj").faces.tolist() == [[0, 1, 2], [0, 2, 3]]
+    off = b"OFF\n4 1 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n"
+    assert load_mesh(off).faces.tolist() == [[0, 1, 2], [0, 2, 3]]
+
+
+# -- bad input -------------------------------------------------------------------------
+
+_NAN_VERTICES = np.array([[0, 0, 0], [1, 0, 0], [np.nan, 1, 0]], float)
+_TRIANGLE = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
+
+BAD_FILES = {
+    # unknown or empty
+    "empty": (b"", None),
+    "empty_ply": (b"", "ply"),
+    "empty_obj": (b"", "obj"),
+    "empty_stl": (b"", "stl"),
+    "empty_off": (b"", "off"),
+    "empty_glb": (b"", "glb"),
+    "empty_msgpack": (b"", "msgpack"),
+    "binary_garbage": (bytes(range(256)) * 4, None),
+    "unknown_format_name": (b"v 0 0 0\n", "xyz"),
+    "whitespace": (b"   \n\n  ", None),
+    # NaN coordinates
+    "ply_nan": (_ply_ascii(_NAN_VERTICES, [[0, 1, 2]]), "ply"),
+    "obj_nan": (b"v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n", "obj"),
+    "obj_inf": (b"v 0 0 0\nv 1 0 0\nv inf 1 0\nf 1 2 3\n", "obj"),
+    "stl_nan": (_stl_ascii(_NAN_VERTICES, [[0, 1, 2]]), "stl"),
+    "stl_binary_nan": (_stl_binary(_NAN_VERTICES, [[0, 1, 2]]), "stl"),
+    "off_nan": (_off(_NAN_VERTICES, [[0, 1, 2]]), "off"),
+    "msgpack_nan": (
+        encode_mesh(_TRIANGLE, [[0, 1, 2]], "msgpack").replace(
+            np.float32(1).tobytes(), np.float32(np.nan).tobytes(), 1
+        ),
+        "msgpack",
+    ),
+    # indices out of range
+    "ply_index": (_ply_ascii(_TRIANGLE, [[0, 1, 3]]), "ply"),
+    "ply_negative_index": (_ply_ascii(_TRIANGLE, [[0, 1, -1]]), "ply"),
+    "ply_huge_index": (_ply_ascii(_TRIANGLE, [[0, 1, 2**40]]), "ply"),
+    "ply_fractional_index": (_ply_ascii(_TRIANGLE, [[0, 1, 1.5]]), "ply"),
+    "obj_index": (b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n", "obj"),
+    "obj_index_zero": (b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", "obj"),
+    "obj_negative_too_far": (b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf -1 -2 -4\n", "obj"),
+    "obj_huge_index": (b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99999999999999999999\n", "obj"),
+    "off_index": (_off(_TRIANGLE, [[0, 1, 3]]), "off"),
+    "off_fractional_index": (b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 1.5\n", "off"),
+    "msgpack_index": (
+        encode_mesh(_TRIANGLE, [[0, 1, 2]], "msgpack").replace(
+            bytes([0, 1, 2]), bytes([0, 1, 9]), 1
+        ),
+        "msgpack",
+    ),
+    # counts that promise more than the file holds
+    "ply_huge_count": (
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 4000000000\n"
+        b"property float x\nproperty float y\nproperty float z\n"
+        b"element face 1\nproperty list uchar int vertex_indices\n"
+        b"end_header\n" + b"\0" * 64,
+        "ply",
+    ),
+    "ply_ascii_huge_count": (
+        _ply_ascii(_TRIANGLE, [[0, 1, 2]]).replace(b"element face 1", b"element face 999999999999"),
+        "ply",
+    ),
+    "ply_huge_list": (
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 3\n"
+        b"property float x\nproperty float y\nproperty float z\n"
+        b"element face 1\nproperty list uint int vertex_indices\n"
+        b"end_header\n" + b"\0" * 36 + struct.pack("<I", 2**32 - 1) + b"\0" * 12,
+        "ply",
+    ),
+    "ply_negative_list": (
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 3\n"
+        b"property float x\nproperty float y\nproperty float z\n"
+        b"element face 2\nproperty list char int vertex_indices\n"
+        b"end_header\n" + b"\0" * 36 + b"\x03" + b"\0" * 12 + b"\xff" + b"\0" * 12,
+        "ply",
+    ),
+    "stl_huge_count": (_stl_binary(_TRIANGLE, [[0, 1, 2]], declared=2**32 - 1), "stl"),
+    "off_huge_count": (b"OFF\n1000000000000 1000000000000 0\n0 0 0\n", "off"),
+    "off_negative_count": (b"OFF\n-3 1 0\n0 0 0\n", "off"),
+    "off_corner_count_lies": (b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n1000000 0 1 2\n", "off"),
+    "msgpack_huge_count": (
+        msgpack.packb(
+            {
+                **msgpack.unpackb(encode_mesh(_TRIANGLE, [[0, 1, 2]], "msgpack")),
+                "vertex_count": 2**62,
+            }
+        ),
+        "msgpack",
+    ),
+    # truncated
+    "ply_truncated": (encode_mesh(*OCTAHEDRON, "ply")[:-7], "ply"),
+    "ply_header_only": (b"ply\nformat ascii 1.0\nelement vertex 3\n", "ply"),
+    "stl_truncated": (_stl_binary(*OCTAHEDRON)[:-30], "stl"),
+    "stl_ascii_truncated": (_stl_ascii(*OCTAHEDRON)[:-80], "stl"),
+    "off_truncated": (_off(*OCTAHEDRON)[:-12], "off"),
+    "glb_truncated": (encode_mesh(*OCTAHEDRON, "glb")[:-20], "glb"),
+    "msgpack_truncated": (encode_mesh(*OCTAHEDRON, "msgpack")[:-5], "msgpack"),
+    # malformed
+    "ply_bad_format": (b"ply\nformat xml 1.0\nend_header\n", "ply"),
+    "ply_unknown_type": (_ply_ascii(_TRIANGLE, [[0, 1, 2]]).replace(b"float x", b"real x"), "ply"),
+    "ply_no_faces": (
+        b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n"
+        b"property float y\nproperty float z\nend_header\n0 0 0\n",
+        "ply",
+    ),
+    "ply_not_numbers": (_ply_ascii(_TRIANGLE, [[0, 1, 2]]).replace(b"0.0 1.0", b"zero 1.0"), "ply"),
+    "obj_bad_corner": (b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1/1/1/1 2 3\n", "obj"),
+    "obj_two_corners": (b"v 0 0 0\nv 1 0 0\nf 1 2\n", "obj"),
+    "obj_words": (b"v zero 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "obj"),
+    "obj_no_faces": (b"v 0 0 0\nv 1 0 0\nv 0 1 0\n", "obj"),
+    "obj_short_vertex": (b"v 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "obj"),
+    "stl_ascii_short_vertex": (
+        _stl_ascii(_TRIANGLE, [[0, 1, 2]]).replace(b"vertex 0.0 1.0 0.0", b"vertex 0.0 1.0"),
+        "stl",
+    ),
+    "off_binary": (b"OFF BINARY\n" + b"\0" * 40, "off"),
+    "off_4d": (b"4OFF\n1 0 0\n0 0 0 0\n", "off"),
+    "off_words": (b"OFF\nthree one zero\n", "off"),
+    "glb_wrong_version": (b"glTF" + struct.pack("<II", 1, 12), "glb"),
+    "glb_bad_json": (
+        b"glTF" + struct.pack("<II", 2, 24) + struct.pack("<II", 4, 0x4E4F534A) + b"{{{{",
+        "glb",
+    ),
+    "glb_no_json": (b"glTF" + struct.pack("<II", 2, 12), "glb"),
+    "msgpack_not_a_map": (msgpack.packb([1, 2, 3]), "msgpack"),
+    "msgpack_float_bits": (
+        msgpack.packb(
+            {
+                **msgpack.unpackb(encode_mesh(_TRIANGLE, [[0, 1, 2]], "msgpack", quantize_bits=8)),
+                "position_bits": 8.0,
+            }
+        ),
+        "msgpack",
+    ),
+    "msgpack_future_version": (
+        msgpack.packb(
+            {**msgpack.unpackb(encode_mesh(_TRIANGLE, [[0, 1, 2]], "msgpack")), "version": 2}
+        ),
+        "msgpack",
+    ),
+}
+
+
+@pytest.mark.parametrize("name", list(BAD_FILES))
+def test_bad_files_are_refused_clearly(name):
+    blob, fmt = BAD_FILES[name]
+    with pytest.raises(InvalidMeshError) as caught:
+        load_mesh(blob, format=fmt)
+    assert str(caught.value)  # a message, not a bare exception
+
+
+def test_unknown_format_and_source_are_named():
+    with pytest.raises(MeshFormatError, match="unknown mesh format 'xyz'"):
+        load_mesh(b"v 0 0 0\n", format="xyz")
+    with pytest.raises(MeshFormatError, match="cannot tell the mesh format"):
+        load_mesh(bytes(range(256)))
+    with pytest.raises(MeshFormatError, match="cannot read a mesh from int"):
+        load_mesh(12)
+
+
+def _glb_with(change) -> bytes:
+    """The octahedron's GLB with its JSON changed by change(gltf) (lengths redone)."""
+    import json
+
+    blob = encode_mesh(*OCTAHEDRON, "glb")
+    json_length = struct.unpack_from("<I", blob, 12)[0]
+    gltf = json.loads(blob[20 : 20 + json_length])
+    binary = blob[20 + json_length + 8 :]
+    change(gltf)
+    text = json.dumps(gltf).encode()
+    text += b" " * (-len(text) % 4)
+    total = 12 + 8 + len(text) + 8 + len(binary)
+    return (
+        struct.pack("<4sII", b"glTF", 2, total)
+        + struct.pack("<II", len(text), 0x4E4F534A)
+        + text
+        + struct.pack("<II", len(binary), 0x004E4942)
+        + binary
+    )
+
+
+def _set_path(*path, value):
+    def change(gltf):
+        node = gltf
+        for key in path[:-1]:
+            node = node[key]
+        node[path[-1]] = value
+
+    return change
+
+
+@pytest.mark.parametrize("change", [
+    _set_path("accessors", 0, "count", value=10**12),
+    _set_path("accessors", 0, "count", value=-5),
+    _set_path("accessors", 1, "count", value=2**40),
+    _set_path("accessors", 0, "byteOffset", value=10**9),
+    _set_path("accessors", 0, "componentType", value=9999),
+    _set_path("accessors", 0, "type", value="MAT9"),
+    _set_path("accessors", 0, "sparse", value={}),
+    _set_path("accessors", 0, "bufferView", value=99),
+    _set_path("accessors", 0, "bufferView", value=-1),
+    _set_path("accessors", 0, "type", value="VEC2"),
+    _set_path("bufferViews", 0, "byteLength", value=10**9),
+    _set_path("bufferViews", 0, "byteOffset", value=-4),
+    _set_path("bufferViews", 0, "byteStride", value=2),
+    _set_path("bufferViews", 0, "buffer", value=3),
+    _set_path("buffers", 0, "byteLength", value=10**9),
+    _set_path("buffers", 0, "uri", value="../../etc/passwd"),
+    _set_path("buffers", 0, "uri", value="data:application/octet-stream;base64,!!!"),
+    _set_path("meshes", 0, "primitives", 0, "indices", value=42),
+    _set_path("meshes", 0, "primitives", 0, "attributes", value={}),
+    _set_path("meshes", 0, "primitives", 0, "mode", value=0),
+    _set_path("meshes", 0, "primitives", 0, "material", value=5),
+    _set_path("meshes", 0, "primitives", 0, "attributes", value="POSITION"),
+    _set_path("meshes", 0, "primitives", value=None),
+    _set_path("meshes", value=[{"primitives": [{}]}]),
+    _set_path("meshes", value="all"),
+    _set_path("extensionsRequired", value=["KHR_draco_mesh_compression"]),
+])  # fmt: skip
+def test_lying_glb_json_is_refused(change):
+    with pytest.raises(MeshFormatError):
+        load_mesh(_glb_with(change))
+
+
+def test_glb_with_out_of_range_indices_is_refused():
+    blob = bytearray(encode_mesh(*OCTAHEDRON, "glb"))
+    # The index accessor comes after the positions (6 x 12 bytes) in the BIN chunk; the
+    # first index (uint16) is set to 7 with 6 vertices.
+    json_length = struct.unpack_from("<I", blob, 12)[0]
+    first_index = 20 + json_length + 8 + 6 * 12
+    blob[first_index : first_index + 2] = struct.pack("<H", 7)
+    with pytest.raises(InvalidMeshError, match="index 7"):
+        load_mesh(bytes(blob))
+
+
+# -- every truncation and many flipped bytes: a mesh or a clear error, nothing else -------
+
+
+def _small_files():
+    vertices, faces = OCTAHEDRON
+    attributes = {"normal": vertices, "color": np.abs(vertices), "uv": vertices[:, :2] / 2 + 0.5}
+    return {
+        "ply": encode_mesh(vertices, faces, "ply", attributes),
+        "ply_ascii": _ply_ascii(vertices, faces),
+        "obj": encode_mesh(vertices, faces, "obj", attributes),
+        "stl": _stl_binary(vertices, faces),
+        "stl_ascii": _stl_ascii(vertices, faces),
+        "off": _off(vertices, faces),
+        "glb": encode_mesh(vertices, faces, "glb", attributes, PNG),
+        "msgpack": encode_mesh(vertices, faces, "msgpack", attributes, PNG),
+        "msgpack_u16": encode_mesh(vertices, faces, "msgpack", quantize_bits=16),
+    }
+
+
+def _load_or_refuse(blob, fmt):
+    try:
+        mesh = load_mesh(blob, format=fmt)
+    except InvalidMeshError as error:
+        assert str(error)
+        return
+    # What loads is a valid mesh.
+    assert np.isfinite(mesh.vertices).all()
+    assert mesh.faces.size and 0 <= mesh.faces.min() and mesh.faces.max() < len(mesh.vertices)
+
+
+@pytest.mark.parametrize("name", list(_small_files()))
+def test_every_truncation_loads_or_is_refused(name):
+    blob = _small_files()[name]
+    fmt = name.split("_")[0]
+    for length in range(len(blob)):
+        _load_or_refuse(blob[:length], fmt)
+        _load_or_refuse(blob[:length], None)
+
+
+@pytest.mark.parametrize("name", list(_small_files()))
+def test_flipped_bytes_load_or_are_refused(name):
+    blob = _small_files()[name]
+    fmt = name.split("_")[0]
+    rng = np.random.default_rng(len(blob))
+    for position in range(len(blob)):
+        for bit in rng.choice(8, size=2, replace=False):
+            damaged = bytearray(blob)
+            damaged[position] ^= 1 << int(bit)
+            _load_or_refuse(bytes(damaged), fmt)

@@ -14,6 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import qem_core
+from qem_core.stream import SplitStreamDecoder, encode_split_frames, grid_for, iter_frames
 from tests.tiny_meshes import grid, icosphere
 
 PROPERTY_SETTINGS = settings(max_examples=25, deadline=None, derandomize=True)
@@ -93,6 +94,29 @@ def test_splits_refine_one_level_into_another(data):
     expected_vertices, expected_faces = pm.lod(n2)
     assert faces.tobytes() == expected_faces.tobytes()
     assert np.array_equal(vertices, expected_vertices)
+
+
+@PROPERTY_SETTINGS
+@given(data=st.data())
+def test_the_split_stream_refines_one_level_into_another(data):
+    """Frames of splits(n1, n2), cut at random points, decoded onto lod(n1) on the
+    stream's grid: lod(n2)'s faces exactly and its positions on that grid."""
+    pm = data.draw(built(any_options))
+    n1 = _level(data.draw, pm)
+    n2 = data.draw(st.integers(n1, pm.n_full))
+    grid = grid_for(pm)
+    vertices, faces = pm.lod(n1)
+    decoder = SplitStreamDecoder(grid.quantise(vertices), faces)
+    stream = b"".join(
+        encode_split_frames(pm, n1, n2, splits_per_frame=data.draw(st.integers(1, 64)))
+    )
+    cuts = sorted(data.draw(st.lists(st.integers(0, len(stream)), max_size=8)))
+    chunks = [stream[a:b] for a, b in zip([0, *cuts], [*cuts, len(stream)], strict=True)]
+    for payload in iter_frames(chunks):
+        decoder.feed(payload)
+    expected_vertices, expected_faces = pm.lod(n2)
+    assert np.array_equal(decoder.faces, expected_faces)
+    assert np.array_equal(decoder.quantised, grid.quantise(expected_vertices))
 
 
 @PROPERTY_SETTINGS

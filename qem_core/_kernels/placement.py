@@ -27,10 +27,13 @@ def _eigenvalues3(a00, a01, a02, a11, a12, a22):
     if p2 <= 0.0:
         return q, q, q
     p = np.sqrt(p2 / 6.0)
+    denominator = 2.0 * p * p * p
+    if denominator == 0.0:
+        return q, q, q  # p^3 underflows (entries near 1e-110): as good as a multiple of I
     # det((A - qI) / p) / 2, clamped: rounding may push it past +-1.
     r = (
         d0 * (d1 * d2 - a12 * a12) - a01 * (a01 * d2 - a12 * a02) + a02 * (a01 * a12 - d1 * a02)
-    ) / (2.0 * p * p * p)
+    ) / denominator
     r = min(1.0, max(-1.0, r))
     phi = np.arccos(r) / 3.0
     largest = q + 2.0 * p * np.cos(phi)
@@ -72,7 +75,8 @@ null_vector3 = numba.njit(cache=True)(_null_vector3)
 
 
 def _solve3(a00, a01, a02, a11, a12, a22, gx, gy, gz):
-    """A^-1 g by cofactors (A symmetric, invertible)."""
+    """A^-1 g by cofactors (A symmetric, invertible); (0, 0, 0) if the determinant
+    underflows to zero (entries near 1e-110), so the caller stays where it is."""
     c00 = a11 * a22 - a12 * a12
     c01 = a02 * a12 - a01 * a22
     c02 = a01 * a12 - a02 * a11
@@ -80,6 +84,8 @@ def _solve3(a00, a01, a02, a11, a12, a22, gx, gy, gz):
     c12 = a01 * a02 - a00 * a12
     c22 = a00 * a11 - a01 * a01
     det = a00 * c00 + a01 * c01 + a02 * c02
+    if det == 0.0:
+        return 0.0, 0.0, 0.0
     return (
         (c00 * gx + c01 * gy + c02 * gz) / det,
         (c01 * gx + c11 * gy + c12 * gz) / det,

@@ -9,7 +9,6 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -37,7 +36,6 @@ def meshes(draw):
         n = draw(st.integers(3, 8))
         vertices, faces = grid(n)
         vertices = np.asarray(vertices, float)
-        # Heights of 1e-110..1e-160 crash the exact mode: see the xfail below.
         amplitude = draw(st.one_of(st.just(0.0), st.floats(1e-3, 2.0)))
         vertices[:, 2] = amplitude * rng.uniform(-1, 1, n * n)
     return np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
@@ -168,17 +166,9 @@ def test_building_twice_gives_byte_identical_files(mesh, build_options):
     assert blobs[0] == blobs[1]
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=ZeroDivisionError,
-    reason=(
-        "bug (found by the height-field strategy): a unit grid with heights around 1e-118 "
-        "makes the exact error mode's fill_heap kernel (qem_core/simplify.py) divide by "
-        "zero; heights 1e-110..1e-160 all do, additive mode and 0 or 1e-200 do not. Valid "
-        "finite input must build, or be refused with a qem_core error"
-    ),
-)
 def test_an_almost_flat_grid_builds_in_exact_mode():
+    # Regression: heights near 1e-118 made the placement's p^3 and determinant underflow
+    # to zero and the jitted kernel raise ZeroDivisionError.
     vertices, faces = grid(3)
     vertices = np.asarray(vertices, float)
     vertices[:, 2] = 1e-118 * np.array([2.0, -3.4, -6.7, -7.1, 4.6, 6.0, 1.6, 3.4, 0.6])

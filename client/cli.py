@@ -41,6 +41,7 @@ from .console import (
     CliError,
     format_of,
     note,
+    parse_option_pairs,
     print_json,
     write_atomically,
 )
@@ -56,7 +57,7 @@ from .local_commands import add_build, add_info, add_lod, add_simplify
 
 __all__ = ["SUBCOMMANDS", "build_parser", "main"]
 
-_DEMO_MESHES = ("server/demo/spot.obj", "examples/spot.obj")
+_DEMO_MESHES = ("server/demo/spot.obj",)
 
 log = logging.getLogger("qem")
 
@@ -174,20 +175,10 @@ def add_upload(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(run=cmd_upload)
 
 
-def _parse_options(pairs: list[str]) -> dict[str, str]:
-    options = {}
-    for pair in pairs:
-        key, sep, value = pair.partition("=")
-        if not sep or not key:
-            raise CliError(f"option {pair!r} is not KEY=VALUE", EXIT_USAGE)
-        options[key.strip()] = value.strip()
-    return options
-
-
 def cmd_upload(args: argparse.Namespace) -> int:
     if not args.input.is_file():
         raise CliError(f"{args.input}: no such file", EXIT_USAGE)
-    options = _parse_options(args.option)
+    options = parse_option_pairs(args.option)
     show = not args.json
     with _client(args) as qem:
         bar = Bar("upload", show)

@@ -10,8 +10,6 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from qem_core.errors import QemError
-
 __all__ = [
     "EXIT_FAILED",
     "EXIT_INTERRUPTED",
@@ -24,6 +22,7 @@ __all__ = [
     "CliError",
     "format_of",
     "note",
+    "parse_option_pairs",
     "print_json",
     "reading",
     "write_atomically",
@@ -86,9 +85,22 @@ def write_atomically(output: str, content: bytes | Callable[[Path], None]) -> No
         raise CliError(f"cannot write {output}: {exc.strerror or exc}") from None
 
 
+def parse_option_pairs(pairs: list[str]) -> dict[str, str]:
+    """Build options given as repeated ``--option NAME=VALUE``, as text."""
+    options = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key.strip():
+            raise CliError(f"option {pair!r} is not NAME=VALUE", EXIT_USAGE)
+        options[key.strip()] = value.strip()
+    return options
+
+
 @contextmanager
 def reading(path: str) -> Iterator[None]:
     """Turn the errors of reading the file `path` into messages for the user."""
+    from qem_core.errors import QemError  # only local commands pay for importing qem_core
+
     try:
         yield
     except FileNotFoundError:

@@ -23,6 +23,7 @@ from .console import (
     CliError,
     format_of,
     note,
+    parse_option_pairs,
     print_json,
     reading,
     write_atomically,
@@ -37,18 +38,14 @@ _ERROR_CURVE_FRACTIONS = (1.0, 0.5, 0.1, 0.02, 0.005)
 def _parse_options(pairs: list[str]) -> qem_core.BuildOptions:
     """--option NAME=VALUE pairs as BuildOptions (numbers and true/false understood)."""
     values: dict[str, object] = {}
-    for pair in pairs:
-        name, sep, text = pair.partition("=")
-        if not sep or not name:
-            raise CliError(f"--option {pair!r}: expected NAME=VALUE", EXIT_USAGE)
-        lowered = text.strip().lower()
-        if lowered in ("true", "false"):
-            values[name.strip()] = lowered == "true"
+    for name, text in parse_option_pairs(pairs).items():
+        if text.lower() in ("true", "false"):
+            values[name] = text.lower() == "true"
             continue
         try:
-            values[name.strip()] = float(text)
+            values[name] = float(text)
         except ValueError:
-            values[name.strip()] = text.strip()
+            values[name] = text
     try:
         return qem_core.BuildOptions.from_mapping(values)
     except qem_core.InvalidOptionsError as exc:
@@ -58,6 +55,7 @@ def _parse_options(pairs: list[str]) -> qem_core.BuildOptions:
 def _add_build_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", help="mesh file: PLY, OBJ, STL, OFF or GLB")
     parser.add_argument(
+        "-O",
         "--option",
         action="append",
         default=[],

@@ -219,6 +219,7 @@ async function load(id) {
     started: performance.now(),
     baseShownMs: null,
     fullShownMs: null,
+    streamedMs: null, // every frame received and stored
     errors: new Map(), // level -> quadric error, from X-Lod-Error
     errorTimer: null,
     failure: null,
@@ -264,11 +265,12 @@ async function load(id) {
       onFrame: () => {
         if (current !== view) return;
         if (levels.level < current.want) levels.setLevel(current.want);
-        scene.changed();
+        scene.changed(true);
         updateStats();
       },
     });
     current.streaming = false;
+    current.streamedMs = performance.now() - current.started;
     updateStats();
   } catch (error) {
     if (signal.aborted) return;
@@ -317,7 +319,9 @@ function updateStats() {
   );
   const error = current.errors.get(levels.level);
   set("stat-error", error === undefined ? "…" : `${error.toPrecision(3)}`, error ?? "");
-  if (error === undefined) scheduleErrorLookup(current);
+  // Not while streaming: the level moves on anyway, and each lookup makes the server
+  // build a level beside the stream it is sending.
+  if (error === undefined && !current.streaming) scheduleErrorLookup(current);
   set(
     "stat-time",
     `base ${formatMs(current.baseShownMs)} · full ${current.failure ? "–" : formatMs(current.fullShownMs)}`,
@@ -391,7 +395,9 @@ window.qemViewer = {
       failure: view?.failure ?? null,
       baseBytes: view?.baseBytes ?? 0,
       splitBytes: view?.splitBytes ?? 0,
+      startedMs: view?.started ?? null, // performance.now() when the mesh was selected
       baseShownMs: view?.baseShownMs ?? null,
+      streamedMs: view?.streamedMs ?? null,
       fullShownMs: view?.fullShownMs ?? null,
     };
   },

@@ -164,10 +164,31 @@ export class FrameCutter {
   }
 }
 
-/** zlib (RFC 1950) data -> bytes, with the browser's DecompressionStream. */
+/** zlib (RFC 1950) data -> bytes, with the browser's DecompressionStream. The payload
+ * is written straight into the stream: going through a Blob costs the blob registry's
+ * round trips, seconds per frame on a large stream. */
 export async function inflate(payload) {
-  const stream = new Blob([payload]).stream().pipeThrough(new DecompressionStream("deflate"));
-  return new Uint8Array(await new Response(stream).arrayBuffer());
+  const stream = new DecompressionStream("deflate");
+  const writer = stream.writable.getWriter();
+  writer.write(payload).catch(() => {}); // errors surface on the readable side
+  writer.close().catch(() => {});
+  const reader = stream.readable.getReader();
+  const chunks = [];
+  let size = 0;
+  for (;;) {
+    const { done, value } = await reader.read();
+    if (done) break;
+    chunks.push(value);
+    size += value.length;
+  }
+  if (chunks.length === 1) return chunks[0];
+  const out = new Uint8Array(size);
+  let at = 0;
+  for (const chunk of chunks) {
+    out.set(chunk, at);
+    at += chunk.length;
+  }
+  return out;
 }
 
 /** One inflated frame's msgpack map, fields checked and planes decoded (no mesh state). */

@@ -8,6 +8,8 @@
 import * as THREE from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
 
+const BACKGROUND_MIN_MS = 100; // background redraws at most this often
+
 export class MeshScene {
   /** Throws when the browser has no WebGL. */
   constructor(canvas) {
@@ -28,6 +30,8 @@ export class MeshScene {
     this.levels = null;
     this.dirty = false;
     this.pending = false;
+    this.lastRender = -Infinity;
+    this.frameMs = 0; // how long the last frame took to draw
     this.onRendered = null; // (levels) => void, after each frame drawn
     new ResizeObserver(() => this.resize()).observe(canvas);
     this.resize();
@@ -90,20 +94,26 @@ export class MeshScene {
     this.requestRender();
   }
 
-  /** The levels' buffers changed (new faces, another level): upload and redraw. */
-  changed() {
+  /** The levels' buffers changed (new faces, another level): upload and redraw. A
+   * `background` change (a stream's frame) waits so that drawing takes at most about a
+   * fifth of the time: drawing a large mesh with a software GL must not take the CPU
+   * that the stream itself needs. */
+  changed(background = false) {
     this.dirty = true;
-    this.requestRender();
+    this.requestRender(background ? Math.max(BACKGROUND_MIN_MS, 4 * this.frameMs) : 0);
   }
 
-  requestRender() {
+  requestRender(minIntervalMs = 0) {
     if (this.pending) return;
     this.pending = true;
-    requestAnimationFrame(() => this.render());
+    const wait = this.lastRender + minIntervalMs - performance.now();
+    if (wait > 0) setTimeout(() => requestAnimationFrame(() => this.render()), wait);
+    else requestAnimationFrame(() => this.render());
   }
 
   render() {
     this.pending = false;
+    this.lastRender = performance.now();
     const levels = this.levels;
     if (this.mesh && this.dirty) {
       const geometry = this.mesh.geometry;
@@ -121,6 +131,11 @@ export class MeshScene {
       this.dirty = false;
     }
     this.renderer.render(this.scene, this.camera);
+    // The next animation frame comes once this one is drawn: its delay is the cost.
+    const started = this.lastRender;
+    requestAnimationFrame(() => {
+      this.frameMs = performance.now() - started;
+    });
     if (levels) this.onRendered?.(levels);
   }
 }

@@ -10,7 +10,7 @@ Layout (little-endian)::
     crc32    uint32   of every byte before it
 
 A file from a newer version, a wrong checksum, or arrays that do not form a consistent
-progressive mesh raise CorruptFileError. docs/qpm.md documents the format.
+progressive mesh raise CorruptFileError. docs/formats.md documents the format.
 """
 
 from __future__ import annotations

@@ -208,3 +208,19 @@ def fast_boundary_loops(faces) -> int:
     (borders are short)."""
     edges, counts = undirected_edges(faces)
     return _count_classes(map(tuple, edges[counts == 1].tolist()))
+
+
+def ancestors(pm, n: int) -> np.ndarray:
+    """(n_full,) the vertex of lod(n) each vertex of lod(n_full) was contracted into.
+
+    From the progressive mesh model alone (qem_core/progressive.py, docs/formats.md):
+    the split that makes level L + 1 from level L creates vertex t = L out of vertex
+    split_vertex[L - n_base]. So vertex u >= n was merged into split_vertex[u - n_base],
+    and its ancestor at level n is found by following those links below n (pointer
+    doubling; every link points to a smaller index).
+    """
+    parent = np.arange(pm.n_full)
+    parent[n:] = pm.split_vertex[n - pm.n_base :]
+    while np.any(parent >= n):
+        parent = parent[parent]
+    return parent

@@ -81,13 +81,20 @@ def test_every_level_has_exactly_n_vertices_all_referenced(built, mesh_name, opt
 
 
 @pytest.mark.parametrize("mesh_name", MESHES)
-def test_level_faces_are_a_prefix_and_levels_grow_by_one_vertex(built, mesh_name):
-    """Faces are numbered in order of appearance: a level's faces, read through the
-    splits since, are the first faces of every finer level."""
+def test_each_level_is_a_prefix_of_every_finer_level(built, mesh_name):
+    """Faces are numbered in order of appearance and vertices in order of introduction:
+    the first F(n1) faces of lod(n2), each corner replaced by the vertex of lod(n1) it was
+    split from (reference.ancestors, from split_vertex alone), are lod(n1)'s faces."""
     pm = built(mesh_name)
     counts = [pm.n_faces(n) for n in levels(pm)]
-    assert counts == sorted(counts)
-    assert counts[-1] == pm.n_faces_full
+    assert counts == sorted(counts) and counts[-1] == pm.n_faces_full
+    for n1 in levels(pm):
+        faces = pm.lod(n1)[1]
+        for n2 in (n1 + 1, (n1 + pm.n_full + 1) // 2, pm.n_full):
+            if n2 <= pm.n_full:
+                finer = pm.lod(n2)[1]
+                parent = reference.ancestors(pm, n1)
+                assert np.array_equal(parent[finer[: len(faces)]], faces), (n1, n2)
 
 
 @pytest.mark.parametrize("mesh_name", MESHES)

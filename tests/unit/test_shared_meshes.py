@@ -55,22 +55,6 @@ def sampled_levels(pm) -> list[int]:
     ]
 
 
-def ancestors(pm, n: int) -> np.ndarray:
-    """(n_full,) the vertex of lod(n) each vertex of lod(n_full) was contracted into.
-
-    From the progressive mesh model alone (qem_core/progressive.py, docs/formats.md):
-    the split that makes level L + 1 from level L creates vertex t = L out of vertex
-    split_vertex[L - n_base]. So vertex u >= n was merged into split_vertex[u - n_base],
-    and its ancestor at level n is found by following those links below n (pointer
-    doubling; every link points to a smaller index).
-    """
-    parent = np.arange(pm.n_full)
-    parent[n:] = pm.split_vertex[n - pm.n_base :]
-    while np.any(parent >= n):
-        parent = parent[parent]
-    return parent
-
-
 @pytest.mark.parametrize("name", CLOSED)
 def test_every_level_keeps_the_topology_of_the_input(shared_build, name):
     mesh, pm = shared_build(name)
@@ -107,7 +91,7 @@ def test_no_level_has_a_flipped_face(shared_build, name):
     for n in sampled_levels(pm):
         vertices, faces = pm.lod(n)
         where = f"{name} at {n} vertices"
-        assert np.array_equal(ancestors(pm, n)[full_faces[: len(faces)]], faces), where
+        assert np.array_equal(reference.ancestors(pm, n)[full_faces[: len(faces)]], faces), where
         normals = reference.face_normals(vertices, faces)
         dots = np.einsum("ij,ij->i", normals, full_normals[: len(faces)])
         flipped = np.flatnonzero(dots <= 0)

@@ -139,6 +139,16 @@ def test_splits_between_sampled_levels_give_the_finer_level(shared_build, name):
         assert vertices.tobytes() == expected_vertices.tobytes()
 
 
+def test_spot_obj_and_spot_ply_are_the_same_surface(shared_build, shared_meshes):
+    """The same cow as OBJ (with UVs) and as PLY (SOURCES.md): the same faces and, to
+    float32 precision, the same positions; a check of the OBJ reader on a real file."""
+    obj = qem_core.load_mesh(shared_meshes / "spot.obj")
+    ply, _ = shared_build("spot.ply")
+    np.testing.assert_allclose(obj.vertices, ply.vertices, atol=1e-6)
+    assert np.array_equal(obj.faces, ply.faces)
+    assert obj.corner_uvs is not None and obj.corner_uvs.shape == (len(obj.faces), 3, 2)
+
+
 # The vectorised checks above stand in for the slow, obvious ones in tests/reference.py;
 # here both kinds must agree on meshes of every kind (closed, open, non-manifold).
 TINY = {

@@ -36,7 +36,8 @@ function formatBytes(n) {
   return `${value.toFixed(value < 10 ? 2 : 1)} ${units[unit]}`;
 }
 
-const formatMs = (ms) => (ms == null ? "…" : ms < 1000 ? `${Math.round(ms)} ms` : `${(ms / 1000).toFixed(2)} s`);
+const formatMs = (ms) =>
+  ms == null ? "…" : ms < 1000 ? `${Math.round(ms)} ms` : `${(ms / 1000).toFixed(2)} s`;
 
 // -- state ------------------------------------------------------------------------------
 
@@ -271,6 +272,7 @@ async function load(id) {
     });
     current.streaming = false;
     current.streamedMs = performance.now() - current.started;
+    scene.changed(); // now, not after a background redraw's wait
     updateStats();
   } catch (error) {
     if (signal.aborted) return;
@@ -281,18 +283,41 @@ async function load(id) {
   }
 }
 
-function setUpControls(levels) {
-  for (const input of [$("lod-slider"), $("lod-number")]) {
-    input.min = levels.nBase;
-    input.max = levels.nFull;
-    input.value = levels.nFull;
-  }
+// The slider is logarithmic in the vertex count (coarse levels differ most); the number
+// box beside it takes any exact count.
+const SLIDER_STEPS = 10000;
+
+function sliderToCount(levels, position) {
+  if (position >= SLIDER_STEPS) return levels.nFull;
+  const low = Math.log(levels.nBase);
+  const high = Math.log(levels.nFull);
+  return Math.round(Math.exp(low + ((high - low) * position) / SLIDER_STEPS));
 }
 
-/** Move the level to the slider's count (as far as received); instant both ways. */
+function countToSlider(levels, n) {
+  const low = Math.log(levels.nBase);
+  const high = Math.log(levels.nFull);
+  return high > low
+    ? Math.round((SLIDER_STEPS * (Math.log(n) - low)) / (high - low))
+    : SLIDER_STEPS;
+}
+
+function setUpControls(levels) {
+  const slider = $("lod-slider");
+  slider.min = 0;
+  slider.max = SLIDER_STEPS;
+  slider.value = SLIDER_STEPS;
+  slider.disabled = levels.nFull === levels.nBase;
+  const number = $("lod-number");
+  number.min = levels.nBase;
+  number.max = levels.nFull;
+  number.value = levels.nFull;
+}
+
+/** Move the level to `n` vertices (as far as received); instant both ways. */
 function setWant(n) {
   const levels = view?.levels;
-  if (!levels) return;
+  if (!levels || !Number.isFinite(n)) return;
   view.want = n >= levels.nFull ? Infinity : Math.max(levels.nBase, Math.round(n));
   levels.setLevel(Math.min(view.want, levels.received));
   scene.changed();
@@ -318,7 +343,11 @@ function updateStats() {
     total,
   );
   const error = current.errors.get(levels.level);
-  set("stat-error", error === undefined ? "…" : `${error.toPrecision(3)}`, error ?? "");
+  set(
+    "stat-error",
+    error === undefined ? "…" : error === 0 ? "0" : error.toExponential(2),
+    error ?? "",
+  );
   // Not while streaming: the level moves on anyway, and each lookup makes the server
   // build a level beside the stream it is sending.
   if (error === undefined && !current.streaming) scheduleErrorLookup(current);
@@ -326,11 +355,11 @@ function updateStats() {
     "stat-time",
     `base ${formatMs(current.baseShownMs)} · full ${current.failure ? "–" : formatMs(current.fullShownMs)}`,
   );
-  const received = levels.nFull > levels.nBase ? (levels.received - levels.nBase) / (levels.nFull - levels.nBase) : 1;
   const slider = $("lod-slider");
+  const received = countToSlider(levels, levels.received) / SLIDER_STEPS;
   slider.style.setProperty("--received", `${(100 * received).toFixed(2)}%`);
   const shown = current.want === Infinity ? levels.nFull : current.want;
-  if (document.activeElement !== slider) slider.value = shown;
+  if (document.activeElement !== slider) slider.value = countToSlider(levels, shown);
   if (document.activeElement !== $("lod-number")) $("lod-number").value = levels.level;
 }
 
@@ -412,12 +441,17 @@ function start() {
     scene = new MeshScene($("canvas"));
     scene.onRendered = onRendered;
   } catch (error) {
-    showMessage(`WebGL is not available in this browser (${error.message}); meshes cannot be drawn`, true);
+    showMessage(
+      `WebGL is not available in this browser (${error.message}); meshes cannot be drawn`,
+      true,
+    );
   }
   setUpUploads();
   $("refresh").addEventListener("click", refreshList);
   const slider = $("lod-slider");
-  slider.addEventListener("input", () => setWant(Number(slider.value)));
+  slider.addEventListener("input", () => {
+    if (view?.levels) setWant(sliderToCount(view.levels, Number(slider.value)));
+  });
   $("lod-number").addEventListener("change", (event) => setWant(Number(event.target.value)));
   window.addEventListener("hashchange", () => {
     const id = currentId();

@@ -64,7 +64,9 @@ function unzigzag(values) {
 /** A typed array over a copy of msgpack bin bytes (copied: views may be unaligned). */
 function binArray(bytes, Type, count, what) {
   if (!(bytes instanceof Uint8Array) || bytes.length !== count * Type.BYTES_PER_ELEMENT) {
-    fail(`base mesh: '${what}' holds ${bytes?.length} bytes, expected ${count * Type.BYTES_PER_ELEMENT}`);
+    fail(
+      `base mesh: '${what}' holds ${bytes?.length} bytes, expected ${count * Type.BYTES_PER_ELEMENT}`,
+    );
   }
   const copy = new Uint8Array(bytes.length);
   copy.set(bytes);
@@ -91,10 +93,14 @@ export function decodeBaseMesh(bytes) {
   }
   if (message?.format !== "qem-mesh-msgpack") fail("base mesh: not a qem-mesh-msgpack map");
   if (message.version !== MESH_VERSION) {
-    fail(`base mesh: version ${message.version} is not supported (this viewer reads ${MESH_VERSION})`);
+    fail(
+      `base mesh: version ${message.version} is not supported (this viewer reads ${MESH_VERSION})`,
+    );
   }
   if (message.position_encoding !== "u16") {
-    fail(`base mesh: positions are '${message.position_encoding}', the splits need 'u16' grid integers`);
+    fail(
+      `base mesh: positions are '${message.position_encoding}', the splits need 'u16' grid integers`,
+    );
   }
   const nVertices = message.vertex_count;
   const nFaces = message.face_count;
@@ -201,9 +207,18 @@ export function decodeFrame(bytes) {
   }
   if (body?.format !== "qem-splits") fail("not a qem-splits frame");
   if (!(body.version <= STREAM_VERSION)) fail(`split frame version ${body.version} is too new`);
-  const counts = ["n_from", "n_to", "faces_from", "bits", "n_new_faces", "n_relabels", "n_explicit"];
+  const counts = [
+    "n_from",
+    "n_to",
+    "faces_from",
+    "bits",
+    "n_new_faces",
+    "n_relabels",
+    "n_explicit",
+  ];
   for (const key of counts) {
-    if (!Number.isInteger(body[key]) || body[key] < 0) fail(`split frame: '${key}' is ${body[key]}`);
+    if (!Number.isInteger(body[key]) || body[key] < 0)
+      fail(`split frame: '${key}' is ${body[key]}`);
   }
   const k = body.n_to - body.n_from;
   const nNew = body.n_new_faces;
@@ -294,7 +309,8 @@ export class ProgressiveLevels {
     if (faces > this.fFull) fail(`frame brings ${faces} faces, past the full ${this.fFull}`);
     for (let i = 0; i < k; i++) {
       const back = frame.splitBack[i];
-      if (back < 1 || back > nFrom + i) fail(`split ${nFrom + i}: names a vertex that does not exist yet`);
+      if (back < 1 || back > nFrom + i)
+        fail(`split ${nFrom + i}: names a vertex that does not exist yet`);
     }
     this.writeNewFaces(frame);
     // Splits, positions and relabels (relabel back is counted from the faces before).

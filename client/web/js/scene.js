@@ -31,6 +31,7 @@ export class MeshScene {
     this.dirty = false;
     this.pending = false;
     this.lastRender = -Infinity;
+    this.timer = null; // a background redraw waiting its turn
     this.frameMs = 0; // how long the last frame took to draw
     this.onRendered = null; // (levels) => void, after each frame drawn
     new ResizeObserver(() => this.resize()).observe(canvas);
@@ -104,11 +105,14 @@ export class MeshScene {
   }
 
   requestRender(minIntervalMs = 0) {
-    if (this.pending) return;
-    this.pending = true;
     const wait = this.lastRender + minIntervalMs - performance.now();
-    if (wait > 0) setTimeout(() => requestAnimationFrame(() => this.render()), wait);
-    else requestAnimationFrame(() => this.render());
+    if (this.pending && !(this.timer && wait <= 0)) return;
+    clearTimeout(this.timer); // a waiting background redraw is overtaken by this one
+    this.timer = null;
+    this.pending = true;
+    const draw = () => requestAnimationFrame(() => this.render());
+    if (wait > 0) this.timer = setTimeout(() => ((this.timer = null), draw()), wait);
+    else draw();
   }
 
   render() {

@@ -284,18 +284,24 @@ def test_viewer_refines_to_the_full_mesh_and_slides_both_ways(server, tmp_path):
         assert state["baseBytes"] > 0 and state["splitBytes"] > 0
         assert 0 < state["baseShownMs"] <= state["fullShownMs"]
 
+        # The figures are read right after each key: the level moves from data held.
         slider = page.locator("#lod-slider")
         slider.focus()
-        slider.press("Home")  # all the way down: the base mesh, at once
+        slider.press("Home")  # all the way down: the base mesh
         assert on_screen(page, "vertices") == info["min_vertices"]
         assert on_screen(page, "faces") == served_digest(http, url, info["min_vertices"])[1]
         slider.press("End")  # and back up
         assert on_screen(page, "vertices") == info["vertices"]
         assert on_screen(page, "faces") == info["faces"]
+        for _ in range(3):  # down a few steps of the (logarithmic) slider
+            slider.press("PageDown")
+        n = on_screen(page, "vertices")
+        assert info["min_vertices"] < n < info["vertices"]
+        assert on_screen(page, "faces") == served_digest(http, url, n)[1]
+        number = page.locator("#lod-number")  # exact counts, down and up
         for n in (info["vertices"] // 3, 1000, info["vertices"] - 5, 100):
-            slider.evaluate(
-                "(node, n) => { node.value = n; node.dispatchEvent(new Event('input')); }", n
-            )
+            number.fill(str(n))
+            number.press("Enter")
             digest, n_faces = served_digest(http, url, n)
             assert on_screen(page, "vertices") == n
             assert on_screen(page, "faces") == n_faces
@@ -306,6 +312,7 @@ def test_viewer_refines_to_the_full_mesh_and_slides_both_ways(server, tmp_path):
             "() => document.getElementById('stat-error').dataset.value !== ''", timeout=30_000
         )
         assert float(page.get_attribute("#stat-error", "data-value")) == pytest.approx(expected)
+        slider.focus()
         slider.press("End")
         assert on_screen(page, "vertices") == info["vertices"]
 

@@ -15,7 +15,7 @@ import pytest
 
 import qem_core
 from qem_core.qpm import MAGIC
-from tests.tiny_meshes import bumpy_grid, icosphere, perforated_icosphere
+from tests.tiny_meshes import OCTAHEDRON, bumpy_grid, icosphere, perforated_icosphere
 
 ARRAYS = (
     "base_vertices",
@@ -272,3 +272,72 @@ def test_checksummed_but_inconsistent_arrays_are_refused(saved, name, index, val
     checks every index the refinement follows."""
     forged = _forge(saved["perforated_sphere"], patch=_set_value(name, index, value))
     _corrupt(forged, match)
+
+
+_DROP = object()  # as a value: delete the entry's field instead
+
+
+def _entry_changed(blob: bytes, name: str, index: int, value) -> bytes:
+    _, header, _ = _split(blob)
+    for entry in header["arrays"]:
+        if entry[0] == name:
+            if value is _DROP:
+                del entry[index]
+            else:
+                entry[index] = value
+    return _forge(blob, header=header)
+
+
+@pytest.mark.parametrize(
+    "name, index, value",
+    [
+        ("split_cost", 3, _DROP),  # an entry without its offset
+        ("level_faces", 2, ["x"]),  # a shape that is not integers
+        ("level_faces", 2, 7),  # a shape that is not a list
+        ("base_vertices", 2, [-4, 3]),  # a negative dimension
+        ("level_faces", 3, "zero"),  # an offset that is not an integer
+        ("level_faces", 3, -8),  # a negative offset
+        # A shape whose byte count wraps around in int64 (2^40 * 2^40 * 8): it must
+        # not pass as a small or negative size.
+        ("base_vertices", 2, [2**40, 2**40]),
+    ],
+)
+def test_a_malformed_array_entry_is_refused(saved, name, index, value):
+    """Regression: these escaped as ValueError or TypeError before qpm.py checked the
+    entries (and the int64 overflow read the wrong bytes)."""
+    with pytest.raises(qem_core.CorruptFileError, match=name):
+        qem_core.load(_entry_changed(saved["sphere"], name, index, value))
+
+
+@pytest.mark.parametrize(
+    "metadata",
+    ["bbox", ["bbox"], 7, {"bbox": "everywhere"}, {"bbox": [0, 1]}, {"bbox": None}],
+)
+def test_metadata_that_is_not_a_map_with_a_2x3_bbox_is_refused(saved, metadata):
+    """Regression: a metadata string or list containing "bbox" passed the check and
+    failed in ProgressiveMesh with ValueError; a bbox of the wrong shape failed later."""
+    _, header, _ = _split(saved["sphere"])
+    header["metadata"] = metadata
+    _corrupt(_forge(saved["sphere"], header=header), "bounding box")
+
+
+def test_a_header_that_is_not_a_map_is_refused(saved):
+    _, header, _ = _split(saved["sphere"])
+    for forged in ([header], {**header, "arrays": 7}, {**header, "arrays": [[1, 2]]}):
+        with pytest.raises(qem_core.CorruptFileError):
+            qem_core.load(_forge(saved["sphere"], header=forged))
+
+
+def test_every_truncation_and_flipped_byte_of_a_small_file_is_refused(tmp_path):
+    """Exhaustive on an octahedron's file (a few hundred bytes)."""
+    path = tmp_path / "octahedron.qpm"
+    qem_core.build(*OCTAHEDRON).save(path)
+    blob = path.read_bytes()
+    for length in range(len(blob)):
+        with pytest.raises(qem_core.CorruptFileError):
+            qem_core.load(blob[:length])
+    for position in range(len(blob)):
+        damaged = bytearray(blob)
+        damaged[position] ^= 0x10
+        with pytest.raises(qem_core.CorruptFileError):
+            qem_core.load(bytes(damaged))

@@ -19,6 +19,7 @@ import hashlib
 import json
 import os
 import shutil
+import struct
 import subprocess
 import zlib
 from collections.abc import Iterator
@@ -131,12 +132,23 @@ const base = decodeBaseMesh(readFileSync(`${dir}/base.msgpack`));
 const levels = new ProgressiveLevels(base, plan.n_full, plan.f_full);
 const stream = readFileSync(`${dir}/splits.bin`);
 const cutter = new FrameCutter();
-for (let at = 0, size = 1; at < stream.length; at += size, size = 2 * size + 1) {
-  for (const payload of cutter.push(stream.subarray(at, at + size))) {
-    levels.addFrame(decodeFrame(await inflate(payload)));
+try {
+  for (let at = 0, size = 1; at < stream.length; at += size, size = 2 * size + 1) {
+    for (const payload of cutter.push(stream.subarray(at, at + size))) {
+      let inflated;
+      try {
+        inflated = await inflate(payload);
+      } catch (error) {
+        throw new Error(`does not inflate: ${error.message}`);
+      }
+      levels.addFrame(decodeFrame(inflated));
+    }
   }
+  cutter.finish();
+} catch (error) {
+  console.log(JSON.stringify({ error: `${error.name}: ${error.message}`, held: levels.received }));
+  process.exit(0);
 }
-cutter.finish();
 const out = {};
 for (const n of plan.visit) {
   levels.setLevel(n);
@@ -151,7 +163,12 @@ console.log(JSON.stringify(out));
 """
 
 
-def run_refine_js(tmp_path: Path, pm: ProgressiveMesh, visit: list[int]) -> dict:
+def run_refine_js(
+    tmp_path: Path, pm: ProgressiveMesh, visit: list[int], stream: bytes | None = None
+) -> dict:
+    """Levels visited by refine.js (level -> level, faces, digest), after it read
+    `stream` (default: pm's whole split stream, two splits a frame); or {"error": ...,
+    "held": vertex count received} if it refused the stream."""
     node = shutil.which("node")
     if node is None:
         pytest.fail("node is missing: it is needed for the viewer's packages (npm ci)")
@@ -161,8 +178,9 @@ def run_refine_js(tmp_path: Path, pm: ProgressiveMesh, visit: list[int]) -> dict
         vertices, faces, "msgpack", quantize_bits=16, grid_box=pm.position_bounds
     )
     (tmp_path / "base.msgpack").write_bytes(base)
-    frames = encode_split_frames(pm, pm.n_base, pm.n_full, splits_per_frame=2)
-    (tmp_path / "splits.bin").write_bytes(b"".join(frames))
+    if stream is None:
+        stream = b"".join(encode_split_frames(pm, pm.n_base, pm.n_full, splits_per_frame=2))
+    (tmp_path / "splits.bin").write_bytes(stream)
     plan = {"n_full": pm.n_full, "f_full": pm.n_faces_full, "visit": visit}
     (tmp_path / "plan.json").write_text(json.dumps(plan))
     driver = tmp_path / "driver.mjs"
@@ -174,7 +192,8 @@ def run_refine_js(tmp_path: Path, pm: ProgressiveMesh, visit: list[int]) -> dict
         timeout=120,
     )
     assert done.returncode == 0, done.stderr
-    return {int(n): level for n, level in json.loads(done.stdout).items()}
+    answer = json.loads(done.stdout)
+    return answer if "error" in answer else {int(n): level for n, level in answer.items()}
 
 
 def hand_drawn_pm() -> ProgressiveMesh:
@@ -225,6 +244,31 @@ def test_refine_js_moves_down_and_up_through_every_level(tmp_path):
     assert len(levels) == pm.n_full - pm.n_base + 1
     for n in down:
         assert levels[n] == {"level": n, "faces": pm.n_faces(n), "digest": pm_digest(pm, n)}
+
+
+def frame_of(payload: bytes) -> bytes:
+    return struct.pack("<I", len(payload)) + payload
+
+
+@pytest.mark.parametrize(
+    ("damage", "message"),
+    [
+        (lambda frames: b"".join(frames)[:-3], "WireFormatError: split stream ends inside a frame"),
+        (lambda frames: b"".join(frames[1:]), "WireFormatError: frame refines 4 vertices"),
+        (lambda frames: frames[0] + b"\x05\x00\x00\x00junk!", "Error: does not inflate"),
+        (
+            lambda frames: frames[0] + frame_of(zlib.compress(b"\x92\x01\x02")),
+            "WireFormatError: not a qem-splits frame",
+        ),
+    ],
+    ids=["cut-inside-a-frame", "frame-skipped", "not-zlib", "not-a-splits-map"],
+)
+def test_refine_js_refuses_damaged_streams(tmp_path, damage, message):
+    pm = hand_drawn_pm()
+    frames = list(encode_split_frames(pm, pm.n_base, pm.n_full, splits_per_frame=1))
+    answer = run_refine_js(tmp_path, pm, [], stream=damage(frames))
+    assert answer["error"].startswith(message)
+    assert pm.n_base <= answer["held"] < pm.n_full  # frames before the damage are kept
 
 
 # -- the page in Chromium -----------------------------------------------------------------

@@ -450,31 +450,44 @@ export async function streamSplits(url, levels, { onFrame, onBytes, signal } = {
   const reader = response.body.getReader();
   const cutter = new FrameCutter();
   let bytes = 0;
+  let failure = null; // the first frame that could not be applied stops the stream
   let applied = Promise.resolve();
-  for (;;) {
-    const { done, value } = await reader.read();
-    if (done) break;
-    bytes += value.length;
-    onBytes?.(bytes);
-    for (const payload of cutter.push(value)) {
-      const inflated = inflate(payload); // starts now; frames are applied in order below
-      inflated.catch(() => {}); // reported through `applied`
-      const seen = bytes;
-      applied = applied.then(async () => {
-        let frame;
-        try {
-          frame = decodeFrame(await inflated);
-        } catch (error) {
-          if (error instanceof WireFormatError) throw error;
-          fail(`split frame does not inflate: ${error.message}`);
-        }
-        levels.addFrame(frame);
-        onFrame?.(seen);
-      });
+  try {
+    for (;;) {
+      const { done, value } = await reader.read();
+      if (failure) throw failure;
+      if (done) break;
+      bytes += value.length;
+      onBytes?.(bytes);
+      for (const payload of cutter.push(value)) {
+        const inflated = inflate(payload); // starts now; frames are applied in order below
+        inflated.catch(() => {}); // reported through `failure`
+        const seen = bytes;
+        applied = applied.then(async () => {
+          if (failure) return;
+          try {
+            let frame;
+            try {
+              frame = decodeFrame(await inflated);
+            } catch (error) {
+              if (error instanceof WireFormatError) throw error;
+              fail(`split frame does not inflate: ${error.message}`);
+            }
+            levels.addFrame(frame);
+            onFrame?.(seen);
+          } catch (error) {
+            failure = error;
+          }
+        });
+      }
     }
+    cutter.finish();
+    await applied;
+    if (failure) throw failure;
+  } catch (error) {
+    reader.cancel().catch(() => {});
+    throw error;
   }
-  cutter.finish();
-  await applied;
   return bytes;
 }
 

@@ -48,6 +48,9 @@ SPLITS_PER_FRAME = 8192
 # 6 the three corners are given explicitly (non-manifold or pair-contraction splits).
 _EXPLICIT_FACE = 6
 _FRAME_LIMIT = 64 << 20
+# A full frame of 8192 splits inflates to well under 1 MiB; 256 MiB leaves room for
+# explicit faces and long relabel lists while bounding what a hostile frame costs.
+_INFLATED_LIMIT = 256 << 20
 
 
 def grid_for(pm: ProgressiveMesh, bits: int = 16) -> Grid:
@@ -178,6 +181,18 @@ def iter_frames(chunks: Iterable[bytes]) -> Iterator[bytes]:
         raise CorruptFileError(f"split stream ends inside a frame ({len(buffer)} bytes left)")
 
 
+def _inflate(payload: bytes) -> bytes:
+    """The frame's deflated body, refused beyond _INFLATED_LIMIT bytes: a small frame must
+    not be able to expand into gigabytes (a deflate bomb)."""
+    inflater = zlib.decompressobj()
+    body = inflater.decompress(payload, _INFLATED_LIMIT)
+    if inflater.unconsumed_tail:
+        raise CorruptFileError(f"split frame inflates beyond {_INFLATED_LIMIT >> 20} MiB")
+    if not inflater.eof:
+        raise CorruptFileError("split frame: the deflate data is truncated")
+    return body
+
+
 class SplitStreamDecoder:
     """Refines a mesh held as grid integers by the frames of a split stream.
 
@@ -202,7 +217,7 @@ class SplitStreamDecoder:
 
     def feed(self, payload: bytes) -> None:
         try:
-            body = msgpack.unpackb(zlib.decompress(payload, bufsize=1 << 16))
+            body = msgpack.unpackb(_inflate(payload))
             if body.get("format") != "qem-splits":
                 raise CorruptFileError("not a qem-splits frame")
             if body["version"] > STREAM_VERSION:

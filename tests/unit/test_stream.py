@@ -317,3 +317,10 @@ def test_a_frame_that_is_not_deflate_or_not_msgpack_is_refused(pm):
     ):
         with pytest.raises(qem_core.CorruptFileError):
             decoder.feed(payload)
+
+
+def test_a_deflate_bomb_is_refused_without_inflating_it_all():
+    bomb = zlib.compress(b"\x00" * (300 << 20), 9)  # 300 KB that would inflate to 300 MiB
+    decoder = SplitStreamDecoder(np.zeros((4, 3), np.int64), np.array([[0, 1, 2], [0, 2, 3]]))
+    with pytest.raises(qem_core.CorruptFileError, match="inflates beyond"):
+        decoder.feed(bomb)

@@ -20,24 +20,21 @@ from ._kernels.contract import (
     PARAM_PRESERVE_TOPOLOGY,
     PARAM_RANK_TOLERANCE,
     STATUS_EXHAUSTED,
-    STATUS_NEED_HEAP_SPACE,
     STATUS_NEED_POOL_SPACE,
     STATUS_NEED_RELABEL_SPACE,
     STATUS_STEPS_DONE,
     Complex,
     Record,
-    resume_pushes,
     run_contractions,
 )
-from ._kernels.heap import grow_heap, make_heap
-from ._kernels.link import make_neighbourhood
+from ._kernels.heap import make_heap
+from ._kernels.link import make_neighbourhood, restart_generations
 from ._kernels.quadrics import QUADRIC_SIZE, fill_face_quadrics
 from ._kernels.runs import reverse_runs
 from ._kernels.setup import (
     fill_border_quadrics,
     fill_heap,
     find_edges,
-    make_edge_slots,
     sum_quadrics,
 )
 from .options import ERROR_MODE_CODES, WEIGHTING_CODES, BuildOptions
@@ -120,18 +117,16 @@ def _initial_complex(vertices: np.ndarray, faces: np.ndarray, options: BuildOpti
     edge_quadrics = np.zeros((edges.shape[0] if exact else 0, QUADRIC_SIZE))
     sum_quadrics(faces, face_quadrics, face_edge, border, border_edges, border_quadrics,
                  vertex_quadrics, edge_quadrics, exact)
-    edge_slot = make_edge_slots(edges if exact else edges[:0], n)
     cx = Complex(
         vertices=np.array(vertices, np.float64, copy=True),
         vertex_quadrics=vertex_quadrics,
-        vertex_stamp=np.zeros(n, np.int32),
         vertex_alive=(np.bincount(faces.reshape(-1), minlength=n) > 0).astype(np.uint8),
         vertex_refused=np.zeros(n, np.uint8),
         faces=np.array(faces, np.int32, copy=True),
         face_alive=np.ones(m, np.uint8),
         face_normals=face_normals,
         face_quadrics=face_quadrics,
-        edge_slot=edge_slot,
+        face_edge=face_edge,
         edge_quadrics=edge_quadrics,
     )
     return cx, edges
@@ -176,14 +171,16 @@ def contract_greedily(
     params = _kernel_params(options)
     lists = make_face_lists(cx.faces, n, capacity=6 * m + 1024)
     hood = make_neighbourhood(n)
-    heap = make_heap(edges.shape[0] + 8 * n + 1024)
-    fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_slot, cx.edge_quadrics, heap.entries,
-              heap.size, edges, options.error_mode == "exact", RANK_TOLERANCE)
+    heap = make_heap(edges.shape[0])
+    fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, edges,
+              options.error_mode == "exact", RANK_TOLERANCE, heap.entries, heap.position,
+              heap.size)
     record = _make_record(n, m)
     budget = n if max_contractions is None else max(0, int(max_contractions))
     done = 0
     while done < budget:
-        status, steps, pending = run_contractions(
+        restart_generations(hood)
+        status, steps = run_contractions(
             cx, lists, hood, heap, record, params, min(CHUNK_CONTRACTIONS, budget - done)
         )
         done += steps
@@ -194,10 +191,6 @@ def contract_greedily(
         elif status == STATUS_NEED_POOL_SPACE:
             compact(lists, cx.vertex_alive)
             lists = lists._replace(pool=_grown(lists.pool, -1))
-        elif status == STATUS_NEED_HEAP_SPACE:
-            heap = grow_heap(heap)
-            while not resume_pushes(cx, lists, hood, heap, pending, params):
-                heap = grow_heap(heap)
         else:
             assert status == STATUS_STEPS_DONE, status
         if progress is not None:

@@ -5,15 +5,24 @@ Contracting (a, b) -> c keeps the slot of a for c and retires b::
         x                 x
        / \\               / \\
       /   \\             /   \\
-     a --- b    ->         c          faces abx and aby die; faces of b now use c
-      \\   /             \\   /
-       \\ /               \\ /
+     a --- b    ->         c          faces abx and aby die; faces of b now use c;
+      \\   /             \\   /          edges bx, by merge into ax, ay; other edges
+       \\ /               \\ /           bz keep their id as cz
         y                 y
+
+Edges have ids (the sides of the input faces, numbered once, see setup.py) and each face
+side knows its edge (``face_edge``), so the heap, the exact mode's edge quadrics and the
+merging of edges all work on ids, with no hashing of vertex pairs.
 
 Error modes (Edelsbrunner, Geometry and Topology for Mesh Generation, III.12):
 additive uses Q_c = Q_a + Q_b; exact keeps quadrics on edges too and uses
 Q_c = Q_a + Q_b - Q_ab and Q_xc = Q_xa + Q_xb - Q_xab, so every original plane is counted
 once in every vertex and edge quadric. Triangle quadrics are the face quadrics themselves.
+
+Candidates: every live edge is in the heap with its current cost, except edges refused by
+the link condition or the flip guard. Those stay out until the neighbourhood of one of
+their ends changes: a refused edge marks both ends, and when a neighbour of a marked
+vertex is contracted into, the vertex's missing edges go back in with fresh costs.
 
 The loop runs in chunks of ``max_steps`` contractions so Python can report progress, and
 stops early with a status code when an array is full (Python grows it and resumes).
@@ -27,8 +36,17 @@ import numba
 import numpy as np
 
 from .adjacency import compact
-from .heap import cost_key, drop_stale, pop_top, push, top_pair
-from .link import REFUSE_NONE, check_link, gather
+from .borrow import borrow
+from .heap import cost_key, pair, remove, top, update
+from .link import (
+    NEAR_EDGE_A,
+    NEAR_EDGE_B,
+    NEAR_SCRATCH,
+    NEAR_TAG_A,
+    REFUSE_NONE,
+    check_link,
+    gather,
+)
 from .placement import place
 from .quadrics import QUADRIC_SIZE
 
@@ -36,7 +54,6 @@ STATUS_EXHAUSTED = 0  # nothing valid left to contract
 STATUS_STEPS_DONE = 1  # max_steps contractions done, more may follow
 STATUS_NEED_RELABEL_SPACE = 2
 STATUS_NEED_POOL_SPACE = 3
-STATUS_NEED_HEAP_SPACE = 4
 
 # Indices into the float parameter vector.
 PARAM_RANK_TOLERANCE = 0
@@ -51,15 +68,24 @@ class Complex(NamedTuple):
 
     vertices: np.ndarray  # (n, 3) float64, moved in place
     vertex_quadrics: np.ndarray  # (n, 10) float64
-    vertex_stamp: np.ndarray  # (n,) int32, bumped on every change
     vertex_alive: np.ndarray  # (n,) uint8
     vertex_refused: np.ndarray  # (n,) uint8: an edge of it was refused, retry on change
     faces: np.ndarray  # (m, 3) int32, corners rewritten in place
     face_alive: np.ndarray  # (m,) uint8
     face_normals: np.ndarray  # (m, 3) float64, unit normals of the original faces
     face_quadrics: np.ndarray  # (m, 10) float64 (triangle quadrics, exact mode)
-    edge_slot: object  # numba typed Dict int64 -> int64, edge key -> edge_quadrics row
-    edge_quadrics: np.ndarray  # (E, 10) float64 (exact mode only; else (0, 10))
+    face_edge: np.ndarray  # (m, 3) int32: edge id of side k (corner k to k + 1)
+    edge_quadrics: np.ndarray  # (E, 10) float64 by edge id (exact mode only; else (0, 10))
+
+    @property
+    def edge_slot(self) -> dict[int, int]:
+        """For inspection (the kernels use ``face_edge``): the id, and so the row of
+        ``edge_quadrics``, of every current edge, keyed ``low * n + high``."""
+        alive = self.face_alive.astype(bool)
+        corners = self.faces[alive].astype(np.int64)
+        ends = np.stack([corners, np.roll(corners, -1, axis=1)], axis=2).reshape(-1, 2)
+        keys = ends.min(axis=1) * self.vertices.shape[0] + ends.max(axis=1)
+        return dict(zip(keys.tolist(), self.face_edge[alive].reshape(-1).tolist(), strict=True))
 
 
 class Record(NamedTuple):
@@ -77,62 +103,60 @@ class Record(NamedTuple):
     counts: np.ndarray  # (3,) int64: contractions, killed used, relabel used
 
 
-def _edge_key(a, b, n):
-    if a < b:
-        return np.int64(a) * n + b
-    return np.int64(b) * n + a
+def _edge_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact, rank_tolerance,
+               quadric, position):
+    """Cost and best position of contracting edge (a, b); quadric (10,) receives Q_c.
 
-
-edge_key = numba.njit(cache=True)(_edge_key)
-
-
-def _edge_cost(vertices, vertex_quadrics, edge_slot, edge_quadrics, a, b, exact,
-               rank_tolerance, quadric, position):
-    """Cost and best position of contracting (a, b); quadric (10,) receives Q_c."""
+    The cost does not depend on the order of a and b (sums commute; the candidates of
+    ``place`` are the same), so the heap may compute it from either end."""
     for k in range(QUADRIC_SIZE):
         quadric[k] = vertex_quadrics[a, k] + vertex_quadrics[b, k]
     if exact:
-        key = edge_key(a, b, vertices.shape[0])
-        if key in edge_slot:
-            row = edge_slot[key]
-            for k in range(QUADRIC_SIZE):
-                quadric[k] -= edge_quadrics[row, k]
+        for k in range(QUADRIC_SIZE):
+            quadric[k] -= edge_quadrics[edge, k]
     return place(quadric, vertices, a, b, rank_tolerance, position)
 
 
-edge_cost = numba.njit(cache=True)(_edge_cost)
+edge_cost = numba.njit(cache=True, inline="always")(_edge_cost)
 
 
-def _push_vertex_edges(vertices, vertex_quadrics, vertex_stamp, edge_slot, edge_quadrics,
-                       faces, face_alive, start, count, pool, tag, generation,
-                       heap_entries, heap_size, v, exact, rank_tolerance):
-    """Push every edge of v with its current cost. False if the heap filled up."""
-    quadric = np.zeros(QUADRIC_SIZE)
-    position = np.zeros(3)
-    scratch = np.zeros(1)
+def _update_vertex_edges(vertices, vertex_quadrics, edge_quadrics, faces, face_alive,
+                         face_edge, start, count, pool, near, generation, heap_entries,
+                         heap_position, heap_size, v, only_missing, exact, rank_tolerance,
+                         quadric, position):
+    """Give every edge of v its current cost in the heap (inserting it if it was out).
+
+    With ``only_missing``, edges already in the heap are left alone (their cost is
+    current: it changes only when an end changes, and then this runs for that end).
+    Tags the neighbours of v (column NEAR_SCRATCH) with a new generation, which it
+    returns. quadric (10,), position (3,): float64 work space.
+    """
     generation[0] += 1
     g = generation[0]
-    tag[v] = g
+    near[v, NEAR_SCRATCH] = g
     s = start[v]
     for i in range(count[v]):
         f = pool[s + i]
         if not face_alive[f]:
             continue
-        for k in range(3):
-            x = faces[f, k]
-            if tag[x] == g:
+        corner = 0 if faces[f, 0] == v else (1 if faces[f, 1] == v else 2)
+        # The two sides at v: v -> next corner is side ``corner``, previous -> v the other.
+        for step in range(1, 3):
+            x = faces[f, (corner + step) % 3]
+            if near[x, NEAR_SCRATCH] == g:
                 continue
-            tag[x] = g
-            cost = edge_cost(vertices, vertex_quadrics, edge_slot, edge_quadrics, v, x,
-                             exact, rank_tolerance, quadric, position)
-            lo, hi = (v, x) if v < x else (x, v)
-            if not push(heap_entries, heap_size, cost_key(cost, scratch), lo, hi,
-                        vertex_stamp[lo], vertex_stamp[hi]):
-                return False
-    return True
+            near[x, NEAR_SCRATCH] = g
+            edge = face_edge[f, corner if step == 1 else (corner + 2) % 3]
+            if only_missing and heap_position[edge] >= 0:
+                continue
+            cost = edge_cost(vertices, vertex_quadrics, edge_quadrics, v, x, edge, exact,
+                             rank_tolerance, quadric, position)
+            update(heap_entries, heap_position, heap_size, cost_key(cost), pair(v, x),
+                   edge)
+    return g
 
 
-push_vertex_edges = numba.njit(cache=True)(_push_vertex_edges)
+update_vertex_edges = numba.njit(cache=True)(_update_vertex_edges)
 
 
 def _turn_ok(vertices, faces, face_normals, f, moved, px, py, pz, cos_step):
@@ -168,7 +192,7 @@ def _turn_ok(vertices, faces, face_normals, f, moved, px, py, pz, cos_step):
     return face_normals[f, 0] * nx + face_normals[f, 1] * ny + face_normals[f, 2] * nz > 0.0
 
 
-turn_ok = numba.njit(cache=True)(_turn_ok)
+turn_ok = numba.njit(cache=True, inline="always")(_turn_ok)
 
 
 def _faces_keep_orientation(vertices, faces, face_alive, face_normals, start, count, pool,
@@ -189,33 +213,40 @@ def _faces_keep_orientation(vertices, faces, face_alive, face_normals, start, co
 faces_keep_orientation = numba.njit(cache=True)(_faces_keep_orientation)
 
 
-def _merge_edge_quadrics(edge_slot, edge_quadrics, face_quadrics, faces, face_alive, start,
-                         count, pool, n, a, b):
-    """Exact mode: Q_xa <- Q_xa + Q_xb - Q_xab for every neighbour x of b; drop Q_ab.
+def _merge_edges(faces, face_alive, face_edge, face_quadrics, edge_quadrics, start, count,
+                 pool, near, generation, heap_entries, heap_position, heap_size, a, b, g,
+                 exact):
+    """Edge bx merges into ax for every common neighbour x of a and b (gathered in
+    generation g): the sides of b's faces take ax's id and bx leaves the heap. Other
+    edges bz keep their id: after the relabelling they are az.
 
-    Runs before the faces are rewritten, while faces abx are still alive.
+    Exact mode: Q_xa <- Q_xa + Q_xb - Q_xab, each sum in a fixed order (the levels must
+    be bit-identical from run to run). Runs before the faces are rewritten, while faces
+    abx are still alive.
     """
+    generation[0] += 1
+    g_seen = generation[0]
     s = start[b]
     for i in range(count[b]):
         f = pool[s + i]
         if not face_alive[f]:
             continue
-        for k in range(3):
-            x = faces[f, k]
-            if x == a or x == b:
+        corner = 0 if faces[f, 0] == b else (1 if faces[f, 1] == b else 2)
+        for step in range(1, 3):
+            x = faces[f, (corner + step) % 3]
+            if x == a or near[x, NEAR_TAG_A] != g:
                 continue
-            key_bx = edge_key(b, x, n)
-            if key_bx not in edge_slot:
-                continue  # already moved (x seen through an earlier face of b)
-            row_bx = edge_slot[key_bx]
-            del edge_slot[key_bx]
-            key_ax = edge_key(a, x, n)
-            if key_ax in edge_slot:
-                row_ax = edge_slot[key_ax]
+            row_ax, row_bx = near[x, NEAR_EDGE_A], near[x, NEAR_EDGE_B]
+            face_edge[f, corner if step == 1 else (corner + 2) % 3] = row_ax
+            if near[x, NEAR_SCRATCH] == g_seen:
+                continue  # x seen through an earlier face of b
+            near[x, NEAR_SCRATCH] = g_seen
+            remove(heap_entries, heap_position, heap_size, row_bx)
+            if exact:
                 for d in range(QUADRIC_SIZE):
                     edge_quadrics[row_ax, d] += edge_quadrics[row_bx, d]
-            else:
-                edge_slot[key_ax] = row_bx
+    if not exact:
+        return
     # The dying faces abx were counted in both Q_xa and Q_xb: subtract them once.
     s = start[a]
     for i in range(count[a]):
@@ -225,15 +256,12 @@ def _merge_edge_quadrics(edge_slot, edge_quadrics, face_quadrics, faces, face_al
         c0, c1, c2 = faces[f, 0], faces[f, 1], faces[f, 2]
         if c0 != b and c1 != b and c2 != b:
             continue
-        row_ax = edge_slot[edge_key(a, c0 + c1 + c2 - a - b, n)]
+        row_ax = near[c0 + c1 + c2 - a - b, NEAR_EDGE_A]
         for d in range(QUADRIC_SIZE):
             edge_quadrics[row_ax, d] -= face_quadrics[f, d]
-    key_ab = edge_key(a, b, n)
-    if key_ab in edge_slot:
-        del edge_slot[key_ab]
 
 
-merge_edge_quadrics = numba.njit(cache=True)(_merge_edge_quadrics)
+merge_edges = numba.njit(cache=True)(_merge_edges)
 
 
 def _remove_from_run(start, count, pool, v, f):
@@ -246,7 +274,7 @@ def _remove_from_run(start, count, pool, v, f):
             return
 
 
-remove_from_run = numba.njit(cache=True)(_remove_from_run)
+remove_from_run = numba.njit(cache=True, inline="always")(_remove_from_run)
 
 
 def _rewrite_faces(faces, face_alive, start, count, pool, used, a, b, killed, n_killed,
@@ -292,163 +320,138 @@ def _rewrite_faces(faces, face_alive, start, count, pool, used, a, b, killed, n_
 rewrite_faces = numba.njit(cache=True)(_rewrite_faces)
 
 
-def _push_after_contraction(vertices, vertex_quadrics, vertex_stamp, vertex_refused,
-                            edge_slot, edge_quadrics, faces, face_alive, start, count, pool,
-                            tag, generation, retry, heap_entries, heap_size, a, exact,
-                            rank_tolerance):
-    """Push the edges of the new vertex a, and again those of neighbours that had an edge
-    refused: a's change may have lifted the reason. ``retry`` is (n,) int32 scratch.
-
-    False if the heap filled up; calling it again after growing the heap is harmless
-    (a duplicate entry is skipped as stale once the first copy is used).
+def _update_after_contraction(vertices, vertex_quadrics, vertex_refused, edge_quadrics,
+                              faces, face_alive, face_edge, start, count, pool, near,
+                              generation, retry, heap_entries, heap_position, heap_size, a,
+                              b, killed, killed_from, killed_to, exact, rank_tolerance,
+                              quadric, position):
+    """New costs for the edges of the new vertex a; edges left without a face leave the
+    heap; neighbours that had an edge refused get their missing edges back, since a's
+    change may have lifted the reason. ``retry`` is (n,) int32 scratch.
     """
-    generation[0] += 1
-    g = generation[0]
+    g = update_vertex_edges(vertices, vertex_quadrics, edge_quadrics, faces, face_alive,
+                            face_edge, start, count, pool, near, generation, heap_entries,
+                            heap_position, heap_size, a, False, exact, rank_tolerance,
+                            quadric, position)
+    # Edge ax of a dying face abx lives on only if another face has it (always, unless
+    # the input is non-manifold or topology is not preserved).
+    for i in range(killed_from, killed_to):
+        f = killed[i]
+        x = faces[f, 0] + faces[f, 1] + faces[f, 2] - a - b
+        if near[x, NEAR_SCRATCH] != g:
+            remove(heap_entries, heap_position, heap_size, near[x, NEAR_EDGE_A])
     n_retry = 0
     s = start[a]
     for i in range(count[a]):
         f = pool[s + i]
         for k in range(3):
             x = faces[f, k]
-            if x != a and vertex_refused[x] and tag[x] != g:
-                tag[x] = g
+            if x != a and vertex_refused[x]:
                 vertex_refused[x] = 0
                 retry[n_retry] = x
                 n_retry += 1
-    retry[n_retry] = a
-    n_retry += 1
     for i in range(n_retry):
-        if not push_vertex_edges(vertices, vertex_quadrics, vertex_stamp, edge_slot,
-                                 edge_quadrics, faces, face_alive, start, count, pool, tag,
-                                 generation, heap_entries, heap_size, retry[i], exact,
-                                 rank_tolerance):
-            for j in range(i, n_retry - 1):
-                vertex_refused[retry[j]] = 1  # not pushed yet: try again on next change
-            return False
-    return True
+        update_vertex_edges(vertices, vertex_quadrics, edge_quadrics, faces, face_alive,
+                            face_edge, start, count, pool, near, generation, heap_entries,
+                            heap_position, heap_size, retry[i], True, exact, rank_tolerance,
+                            quadric, position)
 
 
-push_after_contraction = numba.njit(cache=True)(_push_after_contraction)
-
-
-def _resume_pushes(cx, lists, hood, heap, a, params):
-    """``push_after_contraction`` for Python, after it grew the heap."""
-    return push_after_contraction(
-        cx.vertices, cx.vertex_quadrics, cx.vertex_stamp, cx.vertex_refused, cx.edge_slot,
-        cx.edge_quadrics, cx.faces, cx.face_alive, lists.start, lists.count, lists.pool,
-        hood.tag_scratch, hood.generation, hood.retry, heap.entries, heap.size, a,
-        params[PARAM_EXACT] != 0.0, params[PARAM_RANK_TOLERANCE],
-    )
-
-
-resume_pushes = numba.njit(cache=True)(_resume_pushes)
+update_after_contraction = numba.njit(cache=True)(_update_after_contraction)
 
 
 def _run_contractions(cx, lists, hood, heap, record, params, max_steps):
     """Contract greedily until max_steps are done or nothing valid is left.
 
-    Returns (status, steps done, vertex whose edges still need pushing or -1).
-    Never raises; Python reads the status.
+    Returns (status, steps done). Never raises; Python reads the status.
     """
     exact = params[PARAM_EXACT] != 0.0
     preserve_topology = params[PARAM_PRESERVE_TOPOLOGY] != 0.0
     cos_step = params[PARAM_COS_STEP_TURN]
     rank_tolerance = params[PARAM_RANK_TOLERANCE]
-    vertices, vertex_quadrics, vertex_stamp = cx.vertices, cx.vertex_quadrics, cx.vertex_stamp
-    vertex_alive, vertex_refused = cx.vertex_alive, cx.vertex_refused
-    faces, face_alive, face_normals = cx.faces, cx.face_alive, cx.face_normals
-    edge_slot, edge_quadrics = cx.edge_slot, cx.edge_quadrics
-    start, count, pool, used = lists.start, lists.count, lists.pool, lists.used
-    tag_a, count_a, tag_b, count_b = hood.tag_a, hood.count_a, hood.tag_b, hood.count_b
-    tag_opposite, tag_scratch, generation = hood.tag_opposite, hood.tag_scratch, hood.generation
-    retry = hood.retry
-    heap_entries, heap_size = heap.entries, heap.size
-    n = vertices.shape[0]
+    # Borrowed views: this call's caller holds every array until it returns.
+    vertices, vertex_quadrics = borrow(cx.vertices), borrow(cx.vertex_quadrics)
+    vertex_alive, vertex_refused = borrow(cx.vertex_alive), borrow(cx.vertex_refused)
+    faces, face_alive = borrow(cx.faces), borrow(cx.face_alive)
+    face_normals, face_edge = borrow(cx.face_normals), borrow(cx.face_edge)
+    face_quadrics, edge_quadrics = borrow(cx.face_quadrics), borrow(cx.edge_quadrics)
+    start, count = borrow(lists.start), borrow(lists.count)
+    pool, used = borrow(lists.pool), borrow(lists.used)
+    near, generation, retry = borrow(hood.near), borrow(hood.generation), borrow(hood.retry)
+    heap_entries, heap_position = borrow(heap.entries), borrow(heap.position)
+    heap_size = borrow(heap.size)
+    record_a, record_b = borrow(record.a), borrow(record.b)
+    position_a, position_b = borrow(record.position_a), borrow(record.position_b)
+    record_cost, record_counts = borrow(record.cost), borrow(record.counts)
+    killed, killed_end = borrow(record.killed), borrow(record.killed_end)
+    relabel, relabel_end = borrow(record.relabel), borrow(record.relabel_end)
     quadric = np.zeros(QUADRIC_SIZE)
     position = np.zeros(3)
     steps = 0
     while steps < max_steps:
         if heap_size[0] == 0:
-            return STATUS_EXHAUSTED, steps, -1
-        a, b, stamp_a, stamp_b = top_pair(heap_entries)
-        if (
-            vertex_stamp[a] != stamp_a
-            or vertex_stamp[b] != stamp_b
-            or not vertex_alive[a]
-            or not vertex_alive[b]
-        ):
-            pop_top(heap_entries, heap_size)
-            continue
+            return STATUS_EXHAUSTED, steps
+        a, b, edge = top(heap_entries)
         # The survivor is the vertex with more faces: fewer corners to relabel.
         if count[b] > count[a]:
             a, b = b, a
         if used[0] + count[a] + count[b] > pool.shape[0]:
             compact(lists, vertex_alive)
             if used[0] + count[a] + count[b] > pool.shape[0]:
-                return STATUS_NEED_POOL_SPACE, steps, -1
-        if record.counts[2] + count[b] > record.relabel.shape[0]:
-            return STATUS_NEED_RELABEL_SPACE, steps, -1
+                return STATUS_NEED_POOL_SPACE, steps
+        if record_counts[2] + count[b] > relabel.shape[0]:
+            return STATUS_NEED_RELABEL_SPACE, steps
         generation[0] += 1
         g = generation[0]
-        gather(faces, face_alive, start, count, pool, a, b, tag_a, count_a, tag_b, count_b,
-               tag_opposite, g)
-        if tag_a[b] != g:
-            pop_top(heap_entries, heap_size)  # no longer an edge
-            continue
+        gather(faces, face_alive, face_edge, start, count, pool, a, b, near, g)
+        remove(heap_entries, heap_position, heap_size, edge)
+        if near[b, NEAR_TAG_A] != g:
+            continue  # no face left on the edge (cannot happen: such edges leave the heap)
         if preserve_topology and check_link(
-            faces, face_alive, start, count, pool, a, b, tag_a, count_a, tag_b, count_b,
-            tag_opposite, g,
+            faces, face_alive, start, count, pool, a, b, near, g
         ) != REFUSE_NONE:
-            pop_top(heap_entries, heap_size)
             vertex_refused[a] = 1
             vertex_refused[b] = 1
             continue
-        cost = edge_cost(vertices, vertex_quadrics, edge_slot, edge_quadrics, a, b, exact,
+        cost = edge_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact,
                          rank_tolerance, quadric, position)
         px, py, pz = position[0], position[1], position[2]
         if not faces_keep_orientation(vertices, faces, face_alive, face_normals, start, count,
                                       pool, a, b, px, py, pz, cos_step):
-            pop_top(heap_entries, heap_size)
             vertex_refused[a] = 1
             vertex_refused[b] = 1
             continue
-        pop_top(heap_entries, heap_size)
-        if exact:
-            merge_edge_quadrics(edge_slot, edge_quadrics, cx.face_quadrics, faces, face_alive,
-                                start, count, pool, n, a, b)
-        j = record.counts[0]
-        record.a[j] = a
-        record.b[j] = b
+        merge_edges(faces, face_alive, face_edge, face_quadrics, edge_quadrics, start, count,
+                    pool, near, generation, heap_entries, heap_position, heap_size, a, b, g,
+                    exact)
+        j = record_counts[0]
+        record_a[j] = a
+        record_b[j] = b
         for d in range(3):
-            record.position_a[j, d] = vertices[a, d]
-            record.position_b[j, d] = vertices[b, d]
-        record.cost[j] = cost
+            position_a[j, d] = vertices[a, d]
+            position_b[j, d] = vertices[b, d]
+        record_cost[j] = cost
+        killed_from = record_counts[1]
         n_killed, n_relabel = rewrite_faces(
-            faces, face_alive, start, count, pool, used, a, b, record.killed,
-            record.counts[1], record.relabel, record.counts[2],
+            faces, face_alive, start, count, pool, used, a, b, killed,
+            killed_from, relabel, record_counts[2],
         )
-        record.killed_end[j] = n_killed
-        record.relabel_end[j] = n_relabel
-        record.counts[0] = j + 1
-        record.counts[1] = n_killed
-        record.counts[2] = n_relabel
+        killed_end[j] = n_killed
+        relabel_end[j] = n_relabel
+        record_counts[0] = j + 1
+        record_counts[1] = n_killed
+        record_counts[2] = n_relabel
         vertices[a, 0], vertices[a, 1], vertices[a, 2] = px, py, pz
         for k in range(QUADRIC_SIZE):
             vertex_quadrics[a, k] = quadric[k]
         vertex_alive[b] = 0
-        vertex_stamp[a] += 1
-        vertex_stamp[b] += 1
         steps += 1
-        if heap_size[0] + 8 * (count[a] + 2) >= heap_entries.shape[0]:
-            drop_stale(heap_entries, heap_size, vertex_stamp)
-            if 2 * heap_size[0] >= heap_entries.shape[0]:
-                return STATUS_NEED_HEAP_SPACE, steps, a
-        if not push_after_contraction(vertices, vertex_quadrics, vertex_stamp, vertex_refused,
-                                      edge_slot, edge_quadrics, faces, face_alive, start,
-                                      count, pool, tag_scratch, generation, retry,
-                                      heap_entries, heap_size, a, exact, rank_tolerance):
-            return STATUS_NEED_HEAP_SPACE, steps, a
-    return STATUS_STEPS_DONE, steps, -1
+        update_after_contraction(vertices, vertex_quadrics, vertex_refused, edge_quadrics,
+                                 faces, face_alive, face_edge, start, count, pool, near,
+                                 generation, retry, heap_entries, heap_position, heap_size, a,
+                                 b, killed, killed_from, n_killed, exact,
+                                 rank_tolerance, quadric, position)
+    return STATUS_STEPS_DONE, steps
 
 
 run_contractions = numba.njit(cache=True)(_run_contractions)

@@ -1,74 +1,99 @@
-"""A 4-ary min-heap of candidate contractions in one flat int64 array, lazily invalidated.
+"""An indexed 4-ary min-heap of the candidate edges, one row per edge in the heap.
 
-An entry is one row of ``entries`` (capacity, 3) int64::
+A row of ``entries`` (capacity, 3) int64 is::
 
-    [cost key, a << 32 | b, stamp_a << 32 | stamp_b]
+    [cost key, a << 32 | b, edge id]        (a < b, the edge's ends)
 
-The cost key is the bit pattern of the (non-negative) float64 cost, which orders exactly
-as the cost does. Every change to a vertex bumps its stamp, so an entry whose stamps no
-longer match is stale and is skipped when popped; the fresh cost was pushed when the
-vertex changed. Ties are broken by (a, b), which makes the order, and so every level of
+and ``position[edge]`` is the row holding that edge, -1 when it is not in the heap. The
+cost key is the bit pattern of the (non-negative) float64 cost, which orders exactly as
+the cost does; ties are broken by (a, b), which makes the order, and so every level of
 detail, deterministic.
 
-Why this layout: on a big mesh the heap holds millions of entries and each pop walks its
-height through cold memory. One 24-byte row per entry (instead of parallel cost and id
-arrays) and four children per node (a quarter of the height of a binary heap for the
-same fan-out in cache lines) cut the cache misses per pop several times.
-The size lives in ``size[0]`` so kernels update it in place.
+Why indexed: a lazily invalidated heap pushes a new entry whenever an edge's cost changes
+and skips the old one when it surfaces; on a big mesh nine pops in ten were such stale
+entries, each walking the height of a heap several times the number of edges. Here an
+edge is in the heap at most once: a changed cost moves its row in place (costs mostly
+grow after a contraction, and most rows sit near the leaves, so the walk is short), a
+dead edge is removed, and every pop is a real candidate. The capacity is the number of
+edges of the input: contraction never creates an edge id.
+
+Why this layout: each step of a walk reads the four children of one node; one 24-byte
+row per entry (instead of parallel cost and id arrays) and four children per node (a
+quarter of the height of a binary heap for the same fan-out in cache lines) keep that to
+about two cache lines. ``size[0]`` holds the size so kernels update it in place.
 """
 
 from typing import NamedTuple
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba.core import types
+from numba.extending import intrinsic
 
 ARITY = 4
 _LOW32 = (1 << 32) - 1
 
 
 class Heap(NamedTuple):
-    entries: np.ndarray  # (capacity, 3) int64: cost key, a << 32 | b, stamps
+    entries: np.ndarray  # (capacity, 3) int64: cost key, a << 32 | b, edge id
+    position: np.ndarray  # (capacity,) int32: row of each edge id, -1 if not in the heap
     size: np.ndarray  # (1,) int64
 
 
 def make_heap(capacity: int) -> Heap:
-    return Heap(np.zeros((capacity, 3), np.int64), np.zeros(1, np.int64))
+    """An empty heap for edge ids 0..capacity-1."""
+    return Heap(
+        np.zeros((max(capacity, 1), 3), np.int64),
+        np.full(max(capacity, 1), -1, np.int32),
+        np.zeros(1, np.int64),
+    )
 
 
-def grow_heap(heap: Heap) -> Heap:
-    capacity = heap.entries.shape[0]
-    bigger = make_heap(2 * capacity)
-    bigger.entries[:capacity] = heap.entries
-    bigger.size[0] = heap.size[0]
-    return bigger
+@intrinsic
+def _float_bits(typingctx, value):
+    """The bits of a float64 as an int64 (a register move; no array view, no allocation)."""
+
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], ir.IntType(64))
+
+    return types.int64(types.float64), codegen
 
 
-def _cost_key(cost, scratch):
-    """The int64 whose order is the order of ``cost``; ``scratch`` is (1,) float64.
+def _cost_key(cost):
+    """The int64 whose order is the order of ``cost``.
 
     Negative round-off (a quadric is never below zero) becomes 0, NaN becomes +inf."""
     if not cost >= 0.0:
         cost = np.inf if cost != cost else 0.0
-    scratch[0] = cost + 0.0  # + 0.0 turns -0.0 into 0.0
-    return scratch.view(np.int64)[0]
+    return _float_bits(cost + 0.0)  # + 0.0 turns -0.0 into 0.0
 
 
-cost_key = numba.njit(cache=True)(_cost_key)
+cost_key = numba.njit(cache=True, inline="always")(_cost_key)
 
 
-def _top_pair(entries):
-    """(a, b, stamp_a, stamp_b) of the top entry."""
+def _pair(a, b):
+    """The packed (low, high) pair of an edge's ends, the tie-break of equal costs."""
+    if a < b:
+        return (np.int64(a) << 32) | np.int64(b)
+    return (np.int64(b) << 32) | np.int64(a)
+
+
+pair = numba.njit(cache=True, inline="always")(_pair)
+
+
+def _top(entries):
+    """(a, b, edge id) of the top row, a < b."""
     ab = entries[0, 1]
-    stamps = entries[0, 2]
-    return ab >> 32, ab & _LOW32, stamps >> 32, stamps & _LOW32
+    return ab >> 32, ab & _LOW32, entries[0, 2]
 
 
-top_pair = numba.njit(cache=True)(_top_pair)
+top = numba.njit(cache=True, inline="always")(_top)
 
 
-def _sift_down(entries, i, size):
-    """Move the entry at i down to its place, shifting smaller children up (no swaps)."""
-    key, ab, stamps = entries[i, 0], entries[i, 1], entries[i, 2]
+def _sift_down(entries, position, i, size):
+    """Move the row at i down to its place, shifting smaller children up (no swaps)."""
+    key, ab, edge = entries[i, 0], entries[i, 1], entries[i, 2]
     while True:
         first = ARITY * i + 1
         if first >= size:
@@ -82,87 +107,82 @@ def _sift_down(entries, i, size):
                 best = j
         if entries[best, 0] > key or (entries[best, 0] == key and entries[best, 1] >= ab):
             break
-        entries[i, 0], entries[i, 1], entries[i, 2] = (
-            entries[best, 0],
-            entries[best, 1],
-            entries[best, 2],
-        )
+        moved = entries[best, 2]
+        entries[i, 0], entries[i, 1], entries[i, 2] = entries[best, 0], entries[best, 1], moved
+        position[moved] = i
         i = best
-    entries[i, 0], entries[i, 1], entries[i, 2] = key, ab, stamps
+    entries[i, 0], entries[i, 1], entries[i, 2] = key, ab, edge
+    position[edge] = i
 
 
-sift_down = numba.njit(cache=True)(_sift_down)
+sift_down = numba.njit(cache=True, inline="always")(_sift_down)
 
 
-def _heapify(entries, size):
+def _sift_up(entries, position, i, key, ab, edge):
+    """Put (key, ab, edge) at row i or above, shifting larger parents down."""
+    while i > 0:
+        parent = (i - 1) // ARITY
+        if entries[parent, 0] < key or (entries[parent, 0] == key and entries[parent, 1] <= ab):
+            break
+        moved = entries[parent, 2]
+        entries[i, 0], entries[i, 1], entries[i, 2] = entries[parent, 0], entries[parent, 1], moved
+        position[moved] = i
+        i = parent
+    entries[i, 0], entries[i, 1], entries[i, 2] = key, ab, edge
+    position[edge] = i
+
+
+sift_up = numba.njit(cache=True, inline="always")(_sift_up)
+
+
+def _heapify(entries, position, size):
+    """Order rows 0..size-1 (written unordered, e.g. by ``fill_heap``) in O(size)."""
     n = size[0]
     for i in range((n - 2) // ARITY, -1, -1):
-        sift_down(entries, i, n)
+        sift_down(entries, position, i, n)
+    for i in range(n):
+        position[entries[i, 2]] = i
 
 
 heapify = numba.njit(cache=True)(_heapify)
 
 
-def _put(entries, i, key, a, b, stamp_a, stamp_b):
-    """Write an entry at row i without ordering (fill, then ``heapify``)."""
-    entries[i, 0] = key
-    entries[i, 1] = (np.int64(a) << 32) | np.int64(b)
-    entries[i, 2] = (np.int64(stamp_a) << 32) | np.int64(stamp_b)
+def _update(entries, position, size, key, ab, edge):
+    """Give ``edge`` the key (key, ab): insert it, or move its row up or down."""
+    i = position[edge]
+    if i < 0:
+        i = size[0]
+        size[0] = i + 1
+        sift_up(entries, position, i, key, ab, edge)
+    elif key < entries[i, 0] or (key == entries[i, 0] and ab < entries[i, 1]):
+        sift_up(entries, position, i, key, ab, edge)
+    else:
+        entries[i, 0], entries[i, 1] = key, ab
+        sift_down(entries, position, i, size[0])
 
 
-put = numba.njit(cache=True)(_put)
+update = numba.njit(cache=True)(_update)
 
 
-def _push(entries, size, key, a, b, stamp_a, stamp_b):
-    """Push an entry; False when the heap is full (the caller grows or compacts it)."""
-    i = size[0]
-    if i >= entries.shape[0]:
-        return False
-    ab = (np.int64(a) << 32) | np.int64(b)
-    size[0] = i + 1
-    while i > 0:
-        parent = (i - 1) // ARITY
-        if entries[parent, 0] < key or (entries[parent, 0] == key and entries[parent, 1] <= ab):
-            break
-        entries[i, 0], entries[i, 1], entries[i, 2] = (
-            entries[parent, 0],
-            entries[parent, 1],
-            entries[parent, 2],
-        )
-        i = parent
-    entries[i, 0] = key
-    entries[i, 1] = ab
-    entries[i, 2] = (np.int64(stamp_a) << 32) | np.int64(stamp_b)
-    return True
-
-
-push = numba.njit(cache=True)(_push)
-
-
-def _pop_top(entries, size):
-    """Remove the top entry (the caller has read it)."""
+def _remove(entries, position, size, edge):
+    """Take ``edge`` out of the heap if it is in; the last row fills its place."""
+    i = position[edge]
+    if i < 0:
+        return
+    position[edge] = -1
     last = size[0] - 1
-    for k in range(3):
-        entries[0, k] = entries[last, k]
     size[0] = last
-    sift_down(entries, 0, last)
+    if i == last:
+        return
+    key, ab, moved = entries[last, 0], entries[last, 1], entries[last, 2]
+    parent = (i - 1) // ARITY
+    if i > 0 and (
+        key < entries[parent, 0] or (key == entries[parent, 0] and ab < entries[parent, 1])
+    ):
+        sift_up(entries, position, i, key, ab, moved)
+    else:
+        entries[i, 0], entries[i, 1], entries[i, 2] = key, ab, moved
+        sift_down(entries, position, i, last)
 
 
-pop_top = numba.njit(cache=True)(_pop_top)
-
-
-def _drop_stale(entries, size, vertex_stamp):
-    """Remove every entry whose stamps are out of date, then restore the heap order."""
-    kept = 0
-    for i in range(size[0]):
-        ab = entries[i, 1]
-        stamps = entries[i, 2]
-        fresh_a = vertex_stamp[ab >> 32] == stamps >> 32
-        if fresh_a and vertex_stamp[ab & _LOW32] == stamps & _LOW32:
-            entries[kept, 0], entries[kept, 1], entries[kept, 2] = entries[i, 0], ab, stamps
-            kept += 1
-    size[0] = kept
-    heapify(entries, size)
-
-
-drop_stale = numba.njit(cache=True)(_drop_stale)
+remove = numba.njit(cache=True)(_remove)

@@ -11,11 +11,15 @@ dummy vertex ω joined to every border vertex, which yields the border rules:
     ωx:       no x joined to both a and b by border edges                (no closing a
               3-edge hole, no single triangle shrinking to an edge)
 
-The scratch arrays of ``Neighbourhood`` are filled by ``gather``: how many live faces each
-neighbour shares with a and with b (2 interior edge, 1 border edge, 3+ non-manifold).
-They are stamped with a generation, so nothing is cleared between calls. Kernels take the
-arrays one by one: passing a tuple of arrays to a small jitted function costs reference
-counting on every member, which dominated the loop.
+The scratch rows of ``Neighbourhood.near`` are filled by ``gather``: how many live faces
+each neighbour x shares with a and with b (2 interior edge, 1 border edge, 3+
+non-manifold), and the ids of edges a-x and b-x (the contraction merges and renames edges
+by these ids). Values are stamped with a generation, so nothing is cleared between calls.
+All of a vertex's scratch values sit in one 32-byte row: a contraction visits a dozen
+random vertices, and one row is one cache miss where eight separate arrays were eight.
+Kernels take arrays one by one, and as few as possible: every array argument of a call
+that is not inlined costs two atomic reference-count updates, and passing a tuple of
+arrays costs that for every member.
 """
 
 from typing import NamedTuple
@@ -28,28 +32,42 @@ REFUSE_LINK = 1
 REFUSE_BORDER = 2
 REFUSE_NOT_EDGE = 3
 
+# Columns of ``near``. A count or edge id is valid only while its tag holds the current
+# generation; ``A`` columns describe edge a-x, ``B`` columns edge b-x.
+NEAR_TAG_A = 0
+NEAR_COUNT_A = 1
+NEAR_EDGE_A = 2
+NEAR_TAG_B = 3
+NEAR_COUNT_B = 4
+NEAR_EDGE_B = 5
+NEAR_OPPOSITE = 6  # tag: x spans a face abx
+NEAR_SCRATCH = 7  # tag free for callers (dedupe of neighbours)
+NEAR_COLUMNS = 8
+# Generations are int32 in ``near``; the driver restarts them well before they overflow.
+MAX_GENERATION = 1 << 30
+
 
 class Neighbourhood(NamedTuple):
-    tag_a: np.ndarray  # (n,) int64: generation when count_a[x] was set
-    count_a: np.ndarray  # (n,) int64: live faces containing edge a-x
-    tag_b: np.ndarray
-    count_b: np.ndarray
-    tag_opposite: np.ndarray  # (n,) int64: x spans a face abx in this generation
-    tag_scratch: np.ndarray  # (n,) int64: free for callers (dedupe of neighbours)
-    generation: np.ndarray  # (1,) int64
+    near: np.ndarray  # (n, 8) int32, columns NEAR_*
+    generation: np.ndarray  # (1,) int64, the last generation handed out
     retry: np.ndarray  # (n + 1,) int32: scratch list of vertices
 
 
 def make_neighbourhood(n_vertices: int) -> Neighbourhood:
-    return Neighbourhood(
-        *(np.full(n_vertices, -1, np.int64) for _ in range(6)),
-        np.zeros(1, np.int64),
-        np.full(n_vertices + 1, -1, np.int32),
-    )
+    return Neighbourhood(np.full((n_vertices, NEAR_COLUMNS), -1, np.int32),
+                         np.zeros(1, np.int64), np.full(n_vertices + 1, -1, np.int32))
 
 
-def _count_edges(faces, face_alive, start, count, pool, v, tag, edge_count, g):
-    """edge_count[x] = live faces containing edge v-x, for each neighbour x of v."""
+def restart_generations(hood: Neighbourhood) -> None:
+    """Clear the tags and start generations again from 0 (before they overflow int32)."""
+    if hood.generation[0] > MAX_GENERATION:
+        hood.near[:] = -1
+        hood.generation[0] = 0
+
+
+def _count_edges(faces, face_alive, face_edge, start, count, pool, v, near, column, g):
+    """For each neighbour x of v: near[x, column + 1] = live faces containing edge v-x,
+    near[x, column + 2] = that edge's id; near[x, column] = g marks them valid."""
     s = start[v]
     for i in range(count[v]):
         f = pool[s + i]
@@ -59,20 +77,25 @@ def _count_edges(faces, face_alive, start, count, pool, v, tag, edge_count, g):
             x = faces[f, k]
             if x == v:
                 continue
-            if tag[x] != g:
-                tag[x] = g
-                edge_count[x] = 0
-            edge_count[x] += 1
+            if near[x, column] != g:
+                near[x, column] = g
+                near[x, column + 1] = 0
+            near[x, column + 1] += 1
+            # Side k runs from corner k to k + 1: it is x-v if v follows x, else v-x is
+            # the side that ends at x.
+            if faces[f, (k + 1) % 3] == v:
+                near[x, column + 2] = face_edge[f, k]
+            else:
+                near[x, column + 2] = face_edge[f, (k + 2) % 3]
 
 
-count_edges = numba.njit(cache=True)(_count_edges)
+count_edges = numba.njit(cache=True, inline="always")(_count_edges)
 
 
-def _gather(faces, face_alive, start, count, pool, a, b, tag_a, count_a, tag_b, count_b,
-            tag_opposite, g):
+def _gather(faces, face_alive, face_edge, start, count, pool, a, b, near, g):
     """Fill the neighbourhood of a and b for generation g."""
-    count_edges(faces, face_alive, start, count, pool, a, tag_a, count_a, g)
-    count_edges(faces, face_alive, start, count, pool, b, tag_b, count_b, g)
+    count_edges(faces, face_alive, face_edge, start, count, pool, a, near, NEAR_TAG_A, g)
+    count_edges(faces, face_alive, face_edge, start, count, pool, b, near, NEAR_TAG_B, g)
     s = start[a]
     for i in range(count[a]):
         f = pool[s + i]
@@ -80,13 +103,14 @@ def _gather(faces, face_alive, start, count, pool, a, b, tag_a, count_a, tag_b, 
             continue
         f0, f1, f2 = faces[f, 0], faces[f, 1], faces[f, 2]
         if f0 == b or f1 == b or f2 == b:
-            tag_opposite[f0 + f1 + f2 - a - b] = g
+            near[f0 + f1 + f2 - a - b, NEAR_OPPOSITE] = g
 
 
 gather = numba.njit(cache=True)(_gather)
 
 
-def _is_border(faces, face_alive, start, count, pool, v, tag, edge_count, g):
+def _is_border(faces, face_alive, start, count, pool, v, near, column, g):
+    """Has v a border edge (one face)? Needs ``count_edges`` of v in ``column``."""
     s = start[v]
     for i in range(count[v]):
         f = pool[s + i]
@@ -94,15 +118,15 @@ def _is_border(faces, face_alive, start, count, pool, v, tag, edge_count, g):
             continue
         for k in range(3):
             x = faces[f, k]
-            if x != v and tag[x] == g and edge_count[x] == 1:
+            if x != v and near[x, column] == g and near[x, column + 1] == 1:
                 return True
     return False
 
 
-is_border = numba.njit(cache=True)(_is_border)
+is_border = numba.njit(cache=True, inline="always")(_is_border)
 
 
-def _has_face_on_opposites(faces, face_alive, start, count, pool, v, other, tag_opposite, g):
+def _has_face_on_opposites(faces, face_alive, start, count, pool, v, other, near, g):
     """Does v have a live face vxy (not containing ``other``) with x, y both opposite?"""
     s = start[v]
     for i in range(count[v]):
@@ -115,20 +139,19 @@ def _has_face_on_opposites(faces, face_alive, start, count, pool, v, other, tag_
             x = faces[f, k]
             if x == other:
                 has_other = True
-            elif x != v and tag_opposite[x] == g:
+            elif x != v and near[x, NEAR_OPPOSITE] == g:
                 n_opposite += 1
         if not has_other and n_opposite == 2:
             return True
     return False
 
 
-has_face_on_opposites = numba.njit(cache=True)(_has_face_on_opposites)
+has_face_on_opposites = numba.njit(cache=True, inline="always")(_has_face_on_opposites)
 
 
-def _check_link(faces, face_alive, start, count, pool, a, b, tag_a, count_a, tag_b, count_b,
-                tag_opposite, g):
+def _check_link(faces, face_alive, start, count, pool, a, b, near, g):
     """One of the REFUSE_* codes for contracting a and b (gathered in generation g)."""
-    if tag_a[b] != g:
+    if near[b, NEAR_TAG_A] != g:
         return REFUSE_NOT_EDGE
     # Vertices of Lk a ∩ Lk b must be opposite vertices of faces abx.
     s = start[b]
@@ -138,16 +161,17 @@ def _check_link(faces, face_alive, start, count, pool, a, b, tag_a, count_a, tag
             continue
         for k in range(3):
             x = faces[f, k]
-            if x != a and x != b and tag_a[x] == g and tag_opposite[x] != g:
+            if (x != a and x != b and near[x, NEAR_TAG_A] == g
+                    and near[x, NEAR_OPPOSITE] != g):
                 return REFUSE_LINK
     # Edges of Lk a ∩ Lk b: faces axy and bxy over two opposite vertices x, y.
-    if has_face_on_opposites(faces, face_alive, start, count, pool, a, b, tag_opposite, g) and (
-        has_face_on_opposites(faces, face_alive, start, count, pool, b, a, tag_opposite, g)
+    if has_face_on_opposites(faces, face_alive, start, count, pool, a, b, near, g) and (
+        has_face_on_opposites(faces, face_alive, start, count, pool, b, a, near, g)
     ):
         return REFUSE_LINK
-    ab_border = count_a[b] == 1
-    a_border = is_border(faces, face_alive, start, count, pool, a, tag_a, count_a, g)
-    b_border = is_border(faces, face_alive, start, count, pool, b, tag_b, count_b, g)
+    ab_border = near[b, NEAR_COUNT_A] == 1
+    a_border = is_border(faces, face_alive, start, count, pool, a, near, NEAR_TAG_A, g)
+    b_border = is_border(faces, face_alive, start, count, pool, b, near, NEAR_TAG_B, g)
     if a_border and b_border and not ab_border:
         return REFUSE_BORDER
     if a_border and b_border:
@@ -161,7 +185,8 @@ def _check_link(faces, face_alive, start, count, pool, a, b, tag_a, count_a, tag
                 x = faces[f, k]
                 if x == a or x == b:
                     continue
-                if count_b[x] == 1 and tag_a[x] == g and count_a[x] == 1:
+                if (near[x, NEAR_COUNT_B] == 1 and near[x, NEAR_TAG_A] == g
+                        and near[x, NEAR_COUNT_A] == 1):
                     return REFUSE_BORDER
     return REFUSE_NONE
 

@@ -132,7 +132,7 @@ def _minimise_near(quadric, mx, my, mz, rank_tolerance, out):
     out[2] = mz - sz
 
 
-minimise_near = numba.njit(cache=True)(_minimise_near)
+minimise_near = numba.njit(cache=True, inline="always")(_minimise_near)
 
 
 def _place(quadric, vertices, a, b, rank_tolerance, out):
@@ -160,4 +160,4 @@ def _place(quadric, vertices, a, b, rank_tolerance, out):
     return max(best, 0.0)
 
 
-place = numba.njit(cache=True)(_place)
+place = numba.njit(cache=True, inline="always")(_place)

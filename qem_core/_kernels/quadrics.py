@@ -62,7 +62,7 @@ def _evaluate(quadric, x, y, z):
     )
 
 
-evaluate = numba.njit(cache=True)(_evaluate)
+evaluate = numba.njit(cache=True, inline="always")(_evaluate)
 
 
 def _fill_face_quadrics(vertices, faces, weighting, face_quadrics, face_normals):

@@ -25,6 +25,7 @@ export const STREAM_VERSION = 1;
 export const MESH_VERSION = 1;
 const EXPLICIT_FACE = 6; // face codes 0-2: (s, t, x) rotated; 3-5: (t, s, x); 6: explicit
 const FRAME_LIMIT = 64 << 20; // as qem_core.stream: a larger length means a broken stream
+const INFLATED_LIMIT = 256 << 20; // as qem_core.stream: a frame may not inflate further
 
 export class WireFormatError extends Error {
   constructor(message) {
@@ -186,6 +187,10 @@ export async function inflate(payload) {
     if (done) break;
     chunks.push(value);
     size += value.length;
+    if (size > INFLATED_LIMIT) {
+      reader.cancel().catch(() => {});
+      fail(`split frame inflates beyond ${INFLATED_LIMIT >> 20} MiB`);
+    }
   }
   if (chunks.length === 1) return chunks[0];
   const out = new Uint8Array(size);

@@ -1,0 +1,388 @@
+"""Size of the whole vertex-split stream against single-rate encodings (issue 3).
+
+    python -m bench.stream_size [--meshes spot.ply dragon.ply ...] [--bits 16]
+        [--draco-levels 1 7 10] [--timeout S]
+
+For each mesh (default: all seven shared meshes), in a child process
+(`bench.measure.measure_in_child`): `qem_core.build`, then
+
+- the split stream from the base mesh to the full mesh, `qem_core.stream.encode_split_frames`
+  on a --bits grid: total bytes (frame headers included), bytes per vertex split;
+- the base mesh as the quantised msgpack form (`qem_core.encode_mesh(..., "msgpack",
+  quantize_bits=bits, grid_box=pm.position_bounds)`), the first thing a client fetches;
+- for reference, the full mesh in that same msgpack form (qem-lod's own single-rate).
+
+Beside it, in this process, the input with its unreferenced vertices dropped
+(`bench.meshes.compact_referenced`): binary PLY (`qem_core.encode_mesh(v, f, "ply")`)
+and Draco single-rate (`DracoPy.encode`, quantization_bits=bits) at each --draco-levels
+compression level: 1 is DracoPy's default, 7 draco_encoder's, 10 the smallest.
+
+Ratios are of the whole download, base + stream, over each of them. Targets (issue 3):
+<= 10 bytes per split; long run: base + stream <= 1.5x Draco.
+
+Writes bench/results/stream-size.md (the meshes of this run) and merges each mesh's
+entry into bench/results/stream-size.json.
+"""
+
+from __future__ import annotations
+
+import shlex
+import sys
+import time
+import zlib
+from collections.abc import Sequence
+from importlib.metadata import version
+from pathlib import Path
+from typing import Any
+
+from . import qem_lod
+from .meshes import (
+    DEFAULT_MESH_FILES,
+    BenchMesh,
+    compact_referenced,
+    load_bench_mesh,
+)
+from .report import format_ms, format_ratio, markdown_table
+from .runs import (
+    bench_parser,
+    load_average,
+    measure_or_fail,
+    merge_results,
+    now,
+    progress,
+    run_header_lines,
+    source_revision,
+)
+
+__all__ = ["main", "measure_stream_size", "stream_sizes"]
+
+DEFAULT_BITS = 16
+DEFAULT_DRACO_LEVELS = (1, 7, 10)
+TARGET_BYTES_PER_SPLIT = 10.0
+TARGET_DRACO_FACTOR = 1.5
+
+
+def stream_sizes(progressive_mesh, bits: int) -> dict[str, Any]:
+    """In the child, on the built mesh: sizes of the split stream and msgpack forms."""
+    import qem_core
+    from qem_core.stream import encode_split_frames
+
+    pm = progressive_mesh
+    start = time.perf_counter()
+    frames = list(encode_split_frames(pm, pm.n_base, pm.n_full, bits))
+    encode_s = time.perf_counter() - start
+    frame_sizes = [len(frame) for frame in frames]
+
+    def msgpack_bytes(n: int) -> int:
+        vertices, faces = pm.lod(n)
+        encoded = qem_core.encode_mesh(
+            vertices, faces, "msgpack", quantize_bits=bits, grid_box=pm.position_bounds
+        )
+        return len(encoded)
+
+    return {
+        "n_full": pm.n_full,
+        "n_base": pm.n_base,
+        "n_splits": pm.n_splits,
+        "faces_full": pm.n_faces_full,
+        "frames": len(frame_sizes),
+        "stream_bytes": sum(frame_sizes),
+        "stream_encode_s": encode_s,
+        "field_bytes": field_bytes(frames),
+        "base_msgpack_bytes": msgpack_bytes(pm.n_base),
+        "full_msgpack_bytes": msgpack_bytes(pm.n_full),
+    }
+
+
+def field_bytes(frames: Sequence[bytes]) -> dict[str, int]:
+    """Where a stream's bytes go: each byte-string field of the frames' msgpack maps
+    deflated on its own (zlib level 9), summed over the frames, by field name.
+
+    A frame is a 4-byte length and a zlib stream of one msgpack map (qem_core.stream);
+    the fields compressed apart add up to a little more than the frames, which deflate
+    them together."""
+    import msgpack
+
+    sizes: dict[str, int] = {}
+    for frame in frames:
+        body = msgpack.unpackb(zlib.decompress(frame[4:]))
+        for name, value in body.items():
+            if isinstance(value, bytes):
+                sizes[name] = sizes.get(name, 0) + len(zlib.compress(value, 9))
+    return sizes
+
+
+def _single_rate_sizes(mesh: BenchMesh, bits: int, draco_levels: Sequence[int]) -> dict:
+    """Binary PLY and Draco of the input (referenced vertices only), with encode times."""
+    import DracoPy
+
+    import qem_core
+
+    vertices, faces = compact_referenced(mesh.vertices, mesh.faces)
+    sizes: dict[str, Any] = {
+        "input_vertices": int(len(vertices)),
+        "input_faces": int(len(faces)),
+        "ply_bytes": len(qem_core.encode_mesh(vertices, faces, "ply")),
+        "draco": {},
+    }
+    for level in draco_levels:
+        start = time.perf_counter()
+        encoded = DracoPy.encode(vertices, faces, quantization_bits=bits, compression_level=level)
+        sizes["draco"][str(level)] = {
+            "bytes": len(encoded),
+            "encode_s": time.perf_counter() - start,
+        }
+    return sizes
+
+
+def measure_stream_size(
+    mesh: BenchMesh, bits: int, draco_levels: Sequence[int], timeout_s: float | None
+) -> dict[str, Any]:
+    """One mesh's JSON entry: stream, base, PLY and Draco sizes and their ratios."""
+    built = measure_or_fail(
+        qem_lod.build_progressive_mesh,
+        (mesh.vertices, mesh.faces, {}),
+        preload=("qem_core",),
+        then=stream_sizes,
+        then_args=(bits,),
+        timeout_s=timeout_s,
+    )
+    entry: dict[str, Any] = {
+        "mesh": mesh.name,
+        "measured_at": now(),
+        "status": built.status,
+        "bits": bits,
+        **_single_rate_sizes(mesh, bits, draco_levels),
+    }
+    if not built.ok:
+        return entry
+    sizes = built.result
+    entry.update(sizes)
+    total = sizes["base_msgpack_bytes"] + sizes["stream_bytes"]
+    entry["total_bytes"] = total
+    entry["bytes_per_split"] = sizes["stream_bytes"] / max(1, sizes["n_splits"])
+    entry["ratios"] = {
+        "total/ply": total / entry["ply_bytes"],
+        "stream/ply": sizes["stream_bytes"] / entry["ply_bytes"],
+        **{f"total/draco{level}": total / d["bytes"] for level, d in entry["draco"].items()},
+        **{
+            f"stream/draco{level}": sizes["stream_bytes"] / d["bytes"]
+            for level, d in entry["draco"].items()
+        },
+    }
+    entry["targets"] = {
+        "bytes_per_split_met": entry["bytes_per_split"] <= TARGET_BYTES_PER_SPLIT,
+        **{
+            f"draco{level}_met": entry["ratios"][f"total/draco{level}"] <= TARGET_DRACO_FACTOR
+            for level in entry["draco"]
+        },
+    }
+    return entry
+
+
+def _count(value: int | None) -> str:
+    return "-" if value is None else f"{value:,}"
+
+
+def write_stream_size_report(
+    path: Path, entries: Sequence[dict[str, Any]], settings: dict[str, Any]
+) -> None:
+    """The Markdown report of this run's meshes."""
+    levels = [str(level) for level in settings["draco_levels"]]
+    bits = settings["bits"]
+    lines = [
+        f"# Split-stream size at a {bits}-bit grid against binary PLY and Draco",
+        "",
+        *run_header_lines(
+            settings, [f"DracoPy {version('DracoPy')}", f"msgpack {version('msgpack')}"]
+        ),
+        "",
+        "Sizes do not depend on the load; only the encode times do.",
+        "",
+        "Stream: `qem_core.stream.encode_split_frames(pm, n_base, n_full, "
+        f"{bits})`, every frame with its 4-byte length. Base: the base mesh as qem-lod's "
+        f"msgpack form, positions on the same {bits}-bit grid. Total = base + stream: the "
+        "whole download from nothing to the full mesh. Full msgpack: the full mesh in "
+        "that msgpack form (qem-lod's own single-rate, for reference). PLY and Draco "
+        "encode the input with its unreferenced vertices dropped; Draco "
+        f"`quantization_bits={bits}` at compression level L (1: DracoPy's default, 7: "
+        "draco_encoder's, 10: smallest). Sizes in bytes.",
+        "",
+    ]
+    rows, per_vertex_rows = [], []
+    for entry in entries:
+        draco = entry["draco"]
+        ratios = entry.get("ratios", {})
+        rows.append(
+            [
+                entry["mesh"],
+                _count(entry.get("n_full")),
+                _count(entry.get("n_splits")),
+                _count(entry.get("stream_bytes")),
+                _count(entry.get("base_msgpack_bytes")),
+                _count(entry.get("total_bytes")),
+                _count(entry.get("full_msgpack_bytes")),
+                _count(entry["ply_bytes"]),
+                *(_count(draco[level]["bytes"]) for level in levels if level in draco),
+                format_ratio(ratios.get("total/ply")),
+                *(format_ratio(ratios.get(f"total/draco{level}")) for level in levels),
+            ]
+        )
+        n_vertices = entry["input_vertices"]
+        per_vertex_rows.append(
+            [
+                entry["mesh"],
+                f"{entry['bytes_per_split']:.2f}" if "bytes_per_split" in entry else "-",
+                _verdict(entry.get("targets", {}).get("bytes_per_split_met")),
+                f"{entry['ply_bytes'] / n_vertices:.2f}",
+                *(f"{draco[level]['bytes'] / n_vertices:.2f}" for level in levels),
+                format_ms(entry.get("stream_encode_s")),
+                *(format_ms(draco[level]["encode_s"]) for level in levels),
+                entry["status"],
+            ]
+        )
+    lines += markdown_table(
+        [
+            "mesh",
+            "V full",
+            "splits",
+            "stream",
+            "base",
+            "total",
+            "full msgpack",
+            "PLY",
+            *(f"Draco L{level}" for level in levels),
+            "total / PLY",
+            *(f"total / Draco L{level}" for level in levels),
+        ],
+        rows,
+        [False] + [True] * (8 + 2 * len(levels)),
+    )
+    lines += ["", "## Per vertex, and encode times", ""]
+    lines += markdown_table(
+        [
+            "mesh",
+            "stream B / split",
+            f"<= {TARGET_BYTES_PER_SPLIT:g} B",
+            "PLY B / V",
+            *(f"Draco L{level} B / V" for level in levels),
+            "stream encode ms",
+            *(f"Draco L{level} encode ms" for level in levels),
+            "status",
+        ],
+        per_vertex_rows,
+        [False, True, False] + [True] * (2 + 2 * len(levels)) + [False],
+    )
+    lines += ["", *_field_lines(entries)]
+    lines += ["", "## Targets (issue 3)", "", *_target_lines(entries, levels), ""]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines), encoding="utf-8")
+
+
+def _field_lines(entries: Sequence[dict[str, Any]]) -> list[str]:
+    """A table of bytes per split by stream field, each field deflated on its own."""
+    measured = [entry for entry in entries if entry.get("field_bytes")]
+    if not measured:
+        return []
+    names = sorted({name for entry in measured for name in entry["field_bytes"]})
+    rows = [
+        [
+            entry["mesh"],
+            *(
+                f"{entry['field_bytes'].get(name, 0) / max(1, entry['n_splits']):.2f}"
+                for name in names
+            ),
+            f"{entry['bytes_per_split']:.2f}",
+        ]
+        for entry in measured
+    ]
+    return [
+        "## Where the stream's bytes go (bytes per split)",
+        "",
+        "Each byte-string field of the frames deflated on its own (zlib level 9) and "
+        "summed over the frames; fields compressed apart add up to a little more than the "
+        "stream, which deflates them together (last column). Field meanings: "
+        "docs/formats.md.",
+        "",
+        *markdown_table(
+            ["mesh", *(f"`{name}`" for name in names), "stream"],
+            rows,
+            [False] + [True] * (len(names) + 1),
+        ),
+    ]
+
+
+def _verdict(met: bool | None) -> str:
+    return "-" if met is None else ("met" if met else "not met")
+
+
+def _target_lines(entries: Sequence[dict[str, Any]], levels: Sequence[str]) -> list[str]:
+    measured = [entry for entry in entries if "targets" in entry]
+    if not measured:
+        return ["Not assessed: no mesh was built."]
+
+    def meeting(key: str) -> str:
+        names = [entry["mesh"] for entry in measured if entry["targets"].get(key)]
+        return f"{len(names)} of {len(measured)}" + (f" ({', '.join(names)})" if names else "")
+
+    per_split = [entry["bytes_per_split"] for entry in measured]
+    lines = [
+        f"- <= {TARGET_BYTES_PER_SPLIT:g} bytes per split: met on "
+        f"{meeting('bytes_per_split_met')} meshes; from {min(per_split):.2f} to "
+        f"{max(per_split):.2f} B per split.",
+    ]
+    for level in levels:
+        ratios = [entry["ratios"][f"total/draco{level}"] for entry in measured]
+        lines.append(
+            f"- base + stream <= {TARGET_DRACO_FACTOR:g}x Draco L{level} (long-run aim): met "
+            f"on {meeting(f'draco{level}_met')} meshes; ratios from {min(ratios):.2f} to "
+            f"{max(ratios):.2f}."
+        )
+    return lines
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = bench_parser("python -m bench.stream_size", __doc__)
+    parser.add_argument("--meshes", nargs="+", default=list(DEFAULT_MESH_FILES))
+    parser.add_argument("--bits", type=int, default=DEFAULT_BITS, help="grid bits per axis")
+    parser.add_argument("--draco-levels", type=int, nargs="+", default=list(DEFAULT_DRACO_LEVELS))
+    arguments = list(sys.argv[1:] if argv is None else argv)
+    args = parser.parse_args(arguments)
+    qem_note = qem_lod.qem_unavailable_reason()
+    if qem_note is not None:
+        progress(f"qem-lod: {qem_note}; nothing to measure")
+        return 1
+    settings = {
+        "command": shlex.join(["python", "-m", "bench.stream_size", *arguments]),
+        "measured_at": now(),
+        "source": source_revision(),
+        "bits": args.bits,
+        "draco_levels": args.draco_levels,
+        "load_average": {"start": load_average()},
+    }
+    entries = []
+    for name in args.meshes:
+        mesh = load_bench_mesh(args.mesh_dir / name)
+        entry = measure_stream_size(mesh, args.bits, args.draco_levels, args.timeout)
+        entries.append(entry)
+        progress(
+            f"{name}: {entry['status']}, stream {_count(entry.get('stream_bytes'))} B, "
+            f"{entry.get('bytes_per_split', float('nan')):.2f} B/split, PLY "
+            f"{_count(entry['ply_bytes'])} B, Draco "
+            + ", ".join(f"L{lv} {_count(d['bytes'])} B" for lv, d in entry["draco"].items())
+        )
+    settings["load_average"]["end"] = load_average()
+    report_path = args.out_dir / "stream-size.md"
+    write_stream_size_report(report_path, entries, settings)
+    json_path = args.out_dir / "stream-size.json"
+    merge_results(json_path, {entry["mesh"]: {**entry, "settings": settings} for entry in entries})
+    progress(f"wrote {report_path} and {json_path}")
+    return 0 if all(entry["status"] == "ok" for entry in entries) else 1
+
+
+if __name__ == "__main__":
+    # Run the module's own import, not __main__: the child process finds stream_sizes by
+    # its module name, bench.stream_size.
+    from bench.stream_size import main as imported_main
+
+    sys.exit(imported_main())

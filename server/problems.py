@@ -226,11 +226,20 @@ def install_problem_handlers(app: FastAPI) -> None:
 
 
 def _use_problem_media_type(schema: dict[str, Any]) -> None:
-    # FastAPI documents extra responses under the route's media type; error bodies are
-    # application/problem+json.
+    # FastAPI documents extra responses under the route's media type, and adds a 422 of its
+    # own HTTPValidationError shape (``detail`` a list) to every route with parameters;
+    # every error body is a ProblemDetails in application/problem+json (``detail`` a text).
+    fastapi_422 = "#/components/schemas/HTTPValidationError"
     for path_item in schema.get("paths", {}).values():
         for operation in path_item.values():
             for status, response in operation.get("responses", {}).items():
                 content = response.get("content", {})
                 if str(status)[0] in "45" and "application/json" in content:
-                    content[PROBLEM_MEDIA_TYPE] = content.pop("application/json")
+                    body = content.pop("application/json")
+                    if body.get("schema", {}).get("$ref") == fastapi_422:
+                        body["schema"] = {"$ref": "#/components/schemas/ProblemDetails"}
+                    content[PROBLEM_MEDIA_TYPE] = body
+    components = schema.setdefault("components", {}).setdefault("schemas", {})
+    components.setdefault("ProblemDetails", ProblemDetails.model_json_schema())
+    for unused in ("HTTPValidationError", "ValidationError"):
+        components.pop(unused, None)

@@ -110,7 +110,8 @@ async def receive_upload(request: Request, writer: BlobWriter, max_bytes: int) -
     content_type = request.headers.get("content-type", "")
     is_multipart = content_type.lower().startswith("multipart/form-data")
     declared = request.headers.get("content-length")
-    if declared is not None and declared.isdigit():
+    # isascii: str.isdigit() also accepts digits int() refuses, such as '²' (a latin-1 byte).
+    if declared is not None and declared.isascii() and declared.isdigit():
         allowance = _MULTIPART_OVERHEAD if is_multipart else 0
         if int(declared) > max_bytes + allowance:
             raise _too_large(max_bytes)
@@ -198,8 +199,9 @@ async def _receive_multipart(request: Request, content_type: str, sink: _Sink) -
     if not boundary:
         raise Problem("bad-upload", "multipart/form-data without a boundary parameter")
     state = _MultipartState(sink)
-    parser = MultipartParser(boundary, state.callbacks())
     try:
+        # Inside the try: the parser refuses a boundary longer than 256 bytes on creation.
+        parser = MultipartParser(boundary, state.callbacks())
         async for chunk in request.stream():
             parser.write(chunk)
             await sink.flush()

@@ -8,8 +8,11 @@ Failure handling:
 - a worker that dies (killed, out of memory, crash in native code) breaks the whole pool;
   the pool is replaced and `recover` requeues the interrupted builds, counting attempts,
   so a mesh that kills its worker every time ends up ``failed`` instead of looping;
+- a worker that dies while idle is noticed by the pool only: the next `submit` finds the
+  pool broken, replaces it and recovers the same way;
 - a worker whose server died (SIGKILL) notices at its next progress report and stops; its
-  writes are fenced anyway, so it cannot disturb the restarted server;
+  writes are fenced anyway, so it cannot disturb the restarted server. A watchdog thread
+  then ends the orphaned process, which would otherwise wait for work forever;
 - `close` terminates running builds; the next start requeues them.
 """
 
@@ -19,6 +22,7 @@ import logging
 import multiprocessing
 import os
 import threading
+import time
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 
@@ -31,10 +35,16 @@ __all__ = ["LocalJobQueue"]
 
 log = logging.getLogger("qem.jobs")
 
+# How often a worker checks that its server is alive, and how long an orphaned worker lets
+# its build stop by itself (and remove its temporary files) before it exits anyway.
+_PARENT_CHECK_S = 1.0
+_ORPHAN_GRACE_S = 10.0
+
 # Per worker process: set once by _init_worker.
 _worker_storage: Storage | None = None
 _worker_settings: Settings | None = None
 _worker_parent: int | None = None
+_worker_idle = threading.Event()
 
 
 def _init_worker(settings: Settings) -> None:
@@ -43,20 +53,36 @@ def _init_worker(settings: Settings) -> None:
     _worker_settings = settings
     _worker_storage = open_storage(settings)
     _worker_parent = os.getppid()
+    _worker_idle.set()
+    threading.Thread(target=_exit_when_orphaned, name="qem-orphan-watch", daemon=True).start()
 
 
 def _parent_is_gone() -> bool:
     return os.getppid() != _worker_parent
 
 
+def _exit_when_orphaned() -> None:
+    # A worker whose server was killed outright (SIGKILL, out of memory) is re-parented and
+    # nothing tells it: the pool's task queue never reports end of file, so it would wait
+    # for work forever, holding its memory, a database connection and the server's stdout.
+    while not _parent_is_gone():
+        time.sleep(_PARENT_CHECK_S)
+    _worker_idle.wait(_ORPHAN_GRACE_S)  # a running build aborts at its next progress report
+    os._exit(0)
+
+
 def _build_in_worker(mesh_id: str) -> str:
     assert _worker_storage is not None and _worker_settings is not None
-    return run_build(
-        _worker_storage,
-        mesh_id,
-        progress_interval=_worker_settings.progress_interval_s,
-        should_abort=_parent_is_gone,
-    )
+    _worker_idle.clear()
+    try:
+        return run_build(
+            _worker_storage,
+            mesh_id,
+            progress_interval=_worker_settings.progress_interval_s,
+            should_abort=_parent_is_gone,
+        )
+    finally:
+        _worker_idle.set()
 
 
 class LocalJobQueue(JobQueue):
@@ -79,7 +105,14 @@ class LocalJobQueue(JobQueue):
             if self._closing or self._executor is None:
                 raise RuntimeError("the job queue is not running")
             generation = self._generation
-            future = self._executor.submit(_build_in_worker, mesh_id)
+            try:
+                future = self._executor.submit(_build_in_worker, mesh_id)
+            except BrokenProcessPool:
+                # A worker died while idle (killed, out of memory): no build was running to
+                # report it, and without a new pool every later upload would stay queued.
+                # recover() submits this mesh again, with any other unfinished one.
+                self._replace_broken_pool(generation, f"found when submitting mesh {mesh_id}")
+                return
         future.add_done_callback(lambda done: self._on_done(mesh_id, generation, done))
 
     def close(self) -> None:
@@ -107,14 +140,7 @@ class LocalJobQueue(JobQueue):
         if error is None:
             return
         if isinstance(error, BrokenProcessPool):
-            with self._lock:
-                if self._closing or generation != self._generation:
-                    return  # another callback of the same broken pool already replaced it
-                log.error("a build worker process died (mesh %s); restarting the pool", mesh_id)
-                broken, self._executor = self._executor, self._new_executor()
-                if broken is not None:
-                    broken.shutdown(wait=False, cancel_futures=True)
-                self.recover()
+            self._replace_broken_pool(generation, f"building mesh {mesh_id}")
             return
         # run_build turns bad input into "failed"; reaching here means the worker could
         # not even run it (e.g. storage unreachable). Record it rather than lose the job.
@@ -122,6 +148,18 @@ class LocalJobQueue(JobQueue):
         self.storage.metadata.fail(
             mesh_id, f"internal error: the build could not run ({type(error).__name__}: {error})"
         )
+
+    def _replace_broken_pool(self, generation: int, doing: str) -> None:
+        """Start a new pool in place of the broken pool `generation`, and requeue (or fail)
+        the builds it interrupted."""
+        with self._lock:
+            if self._closing or generation != self._generation:
+                return  # another caller already replaced this pool
+            log.error("a build worker process died (%s); restarting the pool", doing)
+            broken, self._executor = self._executor, self._new_executor()
+            if broken is not None:
+                broken.shutdown(wait=False, cancel_futures=True)
+            self.recover()
 
 
 def _stop(executor: ProcessPoolExecutor) -> None:

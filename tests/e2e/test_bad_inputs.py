@@ -102,6 +102,14 @@ REFUSED_UPLOADS = [
         422,
     ),
     ("multipart without file", {"files": {"mesh": ("a.ply", b"x")}}, 400),
+    (
+        "multipart boundary too long",
+        {
+            "headers": {"content-type": "multipart/form-data; boundary=" + "b" * 300},
+            "content": b"x",
+        },
+        400,
+    ),
 ]
 
 

@@ -3,8 +3,9 @@
 `prepare_mesh` is the single gate between user data and the kernels: it validates the
 arrays (`validate_mesh_arrays`), welds vertices with exactly equal coordinates (STL
 triangle soups), drops degenerate and duplicate faces and unreferenced vertices, and
-reports what it found. Everything is vectorised numpy; the order of what is kept is
-stable, so the same input always gives the same output, bit for bit.
+reports what it found. The whole-mesh passes (equal rows, edges, components) are O(size)
+numba kernels (`_kernels/topology.py`), the rest vectorised numpy; the order of what is
+kept is stable, so the same input always gives the same output, bit for bit.
 
     input vertices   0  1  2  3  4          (3 coincides with 0, 4 is unreferenced)
     input faces      (0 1 2) (3 2 1) (1 2 3)
@@ -20,12 +21,34 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ._kernels.topology import count_components, find_edges, first_equal_rows
 from .errors import InvalidMeshError
 
-__all__ = ["PreparedMesh", "prepare_mesh", "validate_mesh_arrays"]
+__all__ = [
+    "MeshEdges",
+    "PreparedMesh",
+    "prepare_mesh",
+    "prepare_mesh_and_edges",
+    "unique_edges",
+    "validate_mesh_arrays",
+]
 
 # Indices are stored as int32 everywhere in qem_core.
 _MAX_VERTICES = int(np.iinfo(np.int32).max)
+
+
+class MeshEdges(NamedTuple):
+    """The undirected edges of a prepared mesh (``find_edges``), for the build to reuse.
+
+    edges : (E, 2) int32 (low, high) in increasing order; face_edge : (m, 3) int32, the
+    edge of side k (corner k to k + 1) of each face; edge_face_count : (E,) int32;
+    edge_side : (E,) int64, the last side 3 f + k on each edge.
+    """
+
+    edges: np.ndarray
+    face_edge: np.ndarray
+    edge_face_count: np.ndarray
+    edge_side: np.ndarray
 
 
 class PreparedMesh(NamedTuple):
@@ -138,15 +161,22 @@ def prepare_mesh(vertices: object, faces: object, merge_coincident: bool = True)
     Raises InvalidMeshError for bad input (see `validate_mesh_arrays`), or when no face
     is left after cleaning.
     """
+    return prepare_mesh_and_edges(vertices, faces, merge_coincident)[0]
+
+
+def prepare_mesh_and_edges(
+    vertices: object, faces: object, merge_coincident: bool = True
+) -> tuple[PreparedMesh, MeshEdges]:
+    """`prepare_mesh`, and the edges of the prepared mesh it found for the report."""
     vertices, faces = validate_mesh_arrays(vertices, faces)
     n_vertices = vertices.shape[0]
     n_faces = faces.shape[0]
 
-    if merge_coincident:
-        weld_map = _weld_map(vertices)
-    else:
-        weld_map = np.arange(n_vertices, dtype=np.int32)
-    welded_faces = weld_map[faces]
+    identity = np.arange(n_vertices, dtype=np.int32)
+    weld_map = _weld_map(vertices) if merge_coincident else identity
+    # Scans rarely weld, drop or renumber anything: skip the gathers then.
+    welded = not np.array_equal(weld_map, identity)
+    welded_faces = weld_map[faces] if welded else faces
 
     degenerate = (
         (welded_faces[:, 0] == welded_faces[:, 1])
@@ -162,23 +192,26 @@ def prepare_mesh(vertices: object, faces: object, merge_coincident: bool = True)
         )
 
     # A vertex is kept when it is a weld representative used by a kept face.
+    kept_faces = welded_faces if face_kept.all() else welded_faces[face_kept]
     vertex_used = np.zeros(n_vertices, dtype=bool)
-    vertex_used[welded_faces[face_kept].ravel()] = True
+    vertex_used[kept_faces.ravel()] = True
     kept_vertices = np.flatnonzero(vertex_used)
-    new_index = np.full(n_vertices, -1, dtype=np.int32)
-    new_index[kept_vertices] = np.arange(kept_vertices.size, dtype=np.int32)
-    vertex_map = new_index[weld_map]
-
-    out_faces = vertex_map[welded_faces[face_kept]]
+    if kept_vertices.size == n_vertices:
+        vertex_map = weld_map.copy()  # no vertex dropped, so none welded either
+        out_faces = kept_faces.copy()
+    else:
+        new_index = np.full(n_vertices, -1, dtype=np.int32)
+        new_index[kept_vertices] = np.arange(kept_vertices.size, dtype=np.int32)
+        vertex_map = new_index[weld_map]
+        out_faces = vertex_map[kept_faces]
     face_map = np.full(n_faces, -1, dtype=np.int32)
     face_map[face_kept] = np.arange(out_faces.shape[0], dtype=np.int32)
 
     n_dropped = int(np.count_nonzero(vertex_map < 0))
     n_kept = int(kept_vertices.size)
-    edge_keys = _edge_keys(out_faces, n_kept)
-    edge_starts = np.flatnonzero(np.concatenate(([True], edge_keys[1:] != edge_keys[:-1])))
-    edge_face_counts = np.diff(np.append(edge_starts, edge_keys.size))
-    unique_edges = edge_keys[edge_starts]
+    out_faces = np.ascontiguousarray(out_faces, dtype=np.int32)
+    mesh_edges = unique_edges(out_faces, n_kept)
+    edge_face_counts = mesh_edges.edge_face_count
     report = {
         "unreferenced_vertices": n_dropped,
         "merged_vertices": n_vertices - n_dropped - n_kept,
@@ -186,15 +219,30 @@ def prepare_mesh(vertices: object, faces: object, merge_coincident: bool = True)
         "duplicate_faces": int(np.count_nonzero(duplicate)),
         "non_manifold_edges": int(np.count_nonzero(edge_face_counts > 2)),
         "boundary_edges": int(np.count_nonzero(edge_face_counts == 1)),
-        "components": _count_components(unique_edges // n_kept, unique_edges % n_kept, n_kept),
+        "components": int(count_components(out_faces, n_kept)),
     }
-    return PreparedMesh(
+    prepared = PreparedMesh(
         vertices=np.ascontiguousarray(vertices[kept_vertices]),
-        faces=np.ascontiguousarray(out_faces, dtype=np.int32),
+        faces=out_faces,
         vertex_map=vertex_map,
         face_map=face_map,
         report=report,
     )
+    return prepared, mesh_edges
+
+
+def unique_edges(faces: np.ndarray, n_vertices: int) -> MeshEdges:
+    """The undirected edges of ``faces`` (m, 3) int32 with indices below n_vertices."""
+    faces = np.ascontiguousarray(faces, np.int32)
+    m = faces.shape[0]
+    face_edge = np.zeros((m, 3), np.int32)
+    edges = np.zeros((3 * m, 2), np.int32)
+    edge_face_count = np.zeros(3 * m, np.int32)
+    edge_side = np.zeros(3 * m, np.int64)
+    n_edges = find_edges(faces, n_vertices, face_edge, edges, edge_face_count, edge_side)
+    # Copies, so the (3m,) upper-bound arrays are freed.
+    return MeshEdges(edges[:n_edges].copy(), face_edge, edge_face_count[:n_edges].copy(),
+                     edge_side[:n_edges].copy())
 
 
 def _weld_map(vertices: np.ndarray) -> np.ndarray:
@@ -219,78 +267,7 @@ def _duplicate_faces(faces: np.ndarray, candidate: np.ndarray) -> np.ndarray:
 
 
 def _first_equal_rows(rows: np.ndarray) -> np.ndarray:
-    """(r,) int64: for each row of the (r, c) uint64 array, the index of its first equal row.
-
-    A 64-bit hash per row finds the candidates (rows whose hash repeats, usually few);
-    only those are sorted row by row, so hash collisions cost time, never correctness.
-    """
-    key = _row_hash(rows)
-    first = np.arange(rows.shape[0], dtype=np.int64)
-    sorted_key = np.sort(key)
-    if not (sorted_key[1:] == sorted_key[:-1]).any():
-        return first
-    order = np.argsort(key)
-    same_as_next = key[order[1:]] == key[order[:-1]]
-    in_repeat = np.zeros(order.size, dtype=bool)
-    in_repeat[1:] |= same_as_next
-    in_repeat[:-1] |= same_as_next
-    candidates = np.sort(order[in_repeat])
-    first[candidates] = candidates[_first_equal_rows_by_lexsort(rows[candidates])]
+    """(r,) int64: for each row of the (r, c) uint64 array, the index of its first equal row."""
+    first = np.zeros(rows.shape[0], dtype=np.int64)
+    first_equal_rows(np.ascontiguousarray(rows), first)
     return first
-
-
-def _first_equal_rows_by_lexsort(rows: np.ndarray) -> np.ndarray:
-    """`_first_equal_rows` by sorting whole rows: exact, slower on many rows."""
-    order = np.lexsort(rows.T[::-1])
-    sorted_rows = rows[order]
-    starts_group = np.ones(order.size, dtype=bool)
-    starts_group[1:] = (sorted_rows[1:] != sorted_rows[:-1]).any(axis=1)
-    group_of_sorted = np.cumsum(starts_group) - 1
-    group_first = np.minimum.reduceat(order, np.flatnonzero(starts_group))
-    first = np.zeros(order.size, dtype=np.int64)
-    first[order] = group_first[group_of_sorted]
-    return first
-
-
-def _row_hash(rows: np.ndarray) -> np.ndarray:
-    """(r,) uint64 hash of each row of an (r, c) uint64 array (splitmix64-style mixing)."""
-    key = np.zeros(rows.shape[0], dtype=np.uint64)
-    for column in rows.T:
-        key = (key ^ column) * np.uint64(0x9E3779B97F4A7C15)
-        key ^= key >> np.uint64(29)
-    return key
-
-
-def _edge_keys(faces: np.ndarray, n_vertices: int) -> np.ndarray:
-    """Sorted int64 keys ``low * n_vertices + high`` of every face side (3 per face)."""
-    a = faces.astype(np.int64)
-    u = a.ravel()
-    v = a[:, [1, 2, 0]].ravel()
-    return np.sort(np.minimum(u, v) * n_vertices + np.maximum(u, v))
-
-
-def _count_components(edges_low: np.ndarray, edges_high: np.ndarray, n_vertices: int) -> int:
-    """Connected components of the graph of the given edges (low < high) on n vertices.
-
-    Union-find done in bulk: hook each edge's larger root under the smaller one, then
-    compress paths by pointer jumping, until no edge joins two roots (a handful of rounds
-    on real scans, each on the edges still joining two roots).
-    """
-    parent = np.arange(n_vertices, dtype=np.int32)
-    low = edges_low.astype(np.int32)
-    high = edges_high.astype(np.int32)
-    # In the first round every vertex is its own root: hook the edges as they are.
-    root_low, root_high = low, high
-    while root_low.size:
-        np.minimum.at(parent, np.maximum(root_low, root_high), np.minimum(root_low, root_high))
-        while True:
-            jumped = parent[parent]
-            if np.array_equal(jumped, parent):
-                break
-            parent = jumped
-        root_low = parent[low]
-        root_high = parent[high]
-        joins = root_low != root_high
-        low, high = low[joins], high[joins]
-        root_low, root_high = root_low[joins], root_high[joins]
-    return int(np.count_nonzero(parent == np.arange(n_vertices)))

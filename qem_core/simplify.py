@@ -31,14 +31,9 @@ from ._kernels.heap import make_heap
 from ._kernels.link import make_neighbourhood, restart_generations
 from ._kernels.quadrics import QUADRIC_SIZE, fill_face_quadrics
 from ._kernels.runs import reverse_runs
-from ._kernels.setup import (
-    fill_border_quadrics,
-    fill_heap,
-    find_edges,
-    sum_quadrics,
-)
+from ._kernels.setup import fill_border_quadrics, fill_heap, sum_quadrics
 from .options import ERROR_MODE_CODES, WEIGHTING_CODES, BuildOptions
-from .prepare import prepare_mesh
+from .prepare import MeshEdges, prepare_mesh_and_edges, unique_edges
 from .progressive import ProgressiveMesh
 
 __all__ = [
@@ -65,25 +60,6 @@ class ContractionRun(NamedTuple):
     n_contractions: int
 
 
-def unique_edges(faces: np.ndarray, n_vertices: int):
-    """Unique undirected edges of ``faces``.
-
-    Returns (edges (E, 2) int32 in (low, high) order with edges[:, 0] < edges[:, 1],
-    face_edge (m, 3) int32 the edge of each face side (corner k to k+1),
-    edge_face_count (E,) int32, edge_side (E,) int64 the last side 3 f + k on each edge).
-    """
-    faces = np.ascontiguousarray(faces, np.int32)
-    m = faces.shape[0]
-    face_edge = np.zeros((m, 3), np.int32)
-    edges = np.zeros((3 * m, 2), np.int32)
-    edge_face_count = np.zeros(3 * m, np.int32)
-    edge_side = np.zeros(3 * m, np.int64)
-    n_edges = find_edges(faces, n_vertices, face_edge, edges, edge_face_count, edge_side)
-    # Copies, so the (3m,) upper-bound arrays are freed.
-    return (edges[:n_edges].copy(), face_edge, edge_face_count[:n_edges].copy(),
-            edge_side[:n_edges].copy())
-
-
 def _kernel_params(options: BuildOptions) -> np.ndarray:
     params = np.zeros(N_PARAMS)
     params[PARAM_RANK_TOLERANCE] = RANK_TOLERANCE
@@ -93,14 +69,15 @@ def _kernel_params(options: BuildOptions) -> np.ndarray:
     return params
 
 
-def _initial_complex(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions):
+def _initial_complex(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
+                     mesh_edges: MeshEdges):
     n, m = vertices.shape[0], faces.shape[0]
     weighting = WEIGHTING_CODES[options.weighting]
     face_quadrics = np.zeros((m, QUADRIC_SIZE))
     face_normals = np.zeros((m, 3))
     fill_face_quadrics(vertices, faces, weighting, face_quadrics, face_normals)
 
-    edges, face_edge, edge_face_count, edge_side = unique_edges(faces, n)
+    edges, face_edge, edge_face_count, edge_side = mesh_edges
     border = np.flatnonzero(edge_face_count == 1)
     # The one face of each border edge, and the side's direction in that face.
     border_sides = edge_side[border]
@@ -159,15 +136,19 @@ def contract_greedily(
     options: BuildOptions,
     progress: ProgressCallback | None = None,
     max_contractions: int | None = None,
+    mesh_edges: MeshEdges | None = None,
 ) -> ContractionRun:
     """Contract edges greedily by quadric error until nothing valid is left.
 
     vertices : (n, 3) float64, faces : (m, 3) int32, already prepared (every vertex
     referenced, no degenerate or duplicate face). ``max_contractions`` stops early (the
     tests use it to compare a level of detail with the greedy run stopped there).
+    ``mesh_edges``: the edges of ``faces`` if already found (`prepare_mesh_and_edges`).
     """
     n, m = vertices.shape[0], faces.shape[0]
-    cx, edges = _initial_complex(vertices, faces, options)
+    if mesh_edges is None:
+        mesh_edges = unique_edges(faces, n)
+    cx, edges = _initial_complex(vertices, faces, options, mesh_edges)
     params = _kernel_params(options)
     lists = make_face_lists(cx.faces, n, capacity=6 * m + 1024)
     hood = make_neighbourhood(n)
@@ -261,7 +242,7 @@ def build(
     """
     if not isinstance(options, BuildOptions):
         options = BuildOptions.from_mapping(options)
-    prepared = prepare_mesh(vertices, faces, merge_coincident=options.merge_coincident)
+    prepared, mesh_edges = prepare_mesh_and_edges(vertices, faces, options.merge_coincident)
     if progress is not None:
         progress(0.0)
 
@@ -269,7 +250,8 @@ def build(
         if progress is not None:
             progress(0.02 + 0.93 * fraction)
 
-    run = contract_greedily(prepared.vertices, prepared.faces, options, contraction_progress)
+    run = contract_greedily(prepared.vertices, prepared.faces, options, contraction_progress,
+                            mesh_edges=mesh_edges)
     metadata = {
         "bbox": np.stack([prepared.vertices.min(axis=0), prepared.vertices.max(axis=0)]).tolist(),
         "options": options.to_dict(),

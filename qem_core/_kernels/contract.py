@@ -27,7 +27,10 @@ vertex is contracted into, the vertex's missing edges go back in with fresh cost
 The loop runs in chunks of ``max_steps`` contractions so Python can report progress, and
 stops early with a status code when an array is full (Python grows it and resumes).
 Helpers take plain arrays, not the NamedTuples: a tuple argument costs reference counting
-on each of its members at every call.
+on each of its members at every call; and the loop hands them borrowed views, which cost
+none (memory.py). A contraction touches a dozen random vertices of arrays far larger than
+the cache, so the loop prefetches: the rows of the current neighbourhood as soon as it is
+gathered, and the lists and faces of the likely next candidate while it works.
 """
 
 from typing import NamedTuple
@@ -36,7 +39,6 @@ import numba
 import numpy as np
 
 from .adjacency import compact
-from .borrow import borrow
 from .heap import cost_key, pair, remove, top, update
 from .link import (
     NEAR_EDGE_A,
@@ -47,6 +49,8 @@ from .link import (
     check_link,
     gather,
 )
+from .memory import borrow, prefetch
+from .orientation import faces_keep_orientation
 from .placement import place
 from .quadrics import QUADRIC_SIZE
 
@@ -120,6 +124,57 @@ def _edge_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact, rank
 edge_cost = numba.njit(cache=True, inline="always")(_edge_cost)
 
 
+def _prefetch_neighbourhood(vertices, vertex_quadrics, edge_quadrics, face_normals, faces,
+                            face_alive, face_edge, start, count, pool, heap_position, v,
+                            exact):
+    """Ask for the rows a contraction at v will read (see memory.py): positions and
+    quadrics of v's neighbours, normals of its faces, heap positions (and in exact mode
+    quadrics) of its edges. A quadric row is 80 bytes: two cache lines."""
+    s = start[v]
+    for i in range(count[v]):
+        f = pool[s + i]
+        if not face_alive[f]:
+            continue
+        prefetch(face_normals, f, 0)
+        for k in range(3):
+            x = faces[f, k]
+            prefetch(vertices, x, 0)
+            prefetch(vertex_quadrics, x, 0)
+            prefetch(vertex_quadrics, x, 8 * QUADRIC_SIZE - 8)
+            edge = face_edge[f, k]
+            prefetch(heap_position, edge, 0)
+            if exact:
+                prefetch(edge_quadrics, edge, 0)
+                prefetch(edge_quadrics, edge, 8 * QUADRIC_SIZE - 8)
+
+
+prefetch_neighbourhood = numba.njit(cache=True)(_prefetch_neighbourhood)
+
+
+def _prefetch_next(heap_entries, heap_size, start, count, pool, faces, face_edge, stage):
+    """Start fetching the face lists and faces of the likely next candidate, the top of
+    the heap, in stages spread over the current contraction, each reading what the stage
+    before asked for: 0 where its lists are, 1 the lists, 2 the faces."""
+    if heap_size[0] == 0:
+        return
+    a, b, _ = top(heap_entries)
+    for v in (a, b):
+        if stage == 0:
+            prefetch(start, v, 0)
+            prefetch(count, v, 0)
+        elif stage == 1:
+            prefetch(pool, start[v], 0)
+            prefetch(pool, start[v] + count[v] - 1, 0)
+        else:
+            s = start[v]
+            for i in range(min(count[v], 16)):
+                prefetch(faces, pool[s + i], 0)
+                prefetch(face_edge, pool[s + i], 0)
+
+
+prefetch_next = numba.njit(cache=True, inline="always")(_prefetch_next)
+
+
 def _update_vertex_edges(vertices, vertex_quadrics, edge_quadrics, faces, face_alive,
                          face_edge, start, count, pool, near, generation, heap_entries,
                          heap_position, heap_size, v, only_missing, exact, rank_tolerance,
@@ -131,10 +186,19 @@ def _update_vertex_edges(vertices, vertex_quadrics, edge_quadrics, faces, face_a
     Tags the neighbours of v (column NEAR_SCRATCH) with a new generation, which it
     returns. quadric (10,), position (3,): float64 work space.
     """
+    s = start[v]
+    for i in range(count[v]):
+        f = pool[s + i]
+        if face_alive[f]:
+            # The rows these edges hold and their parents: read after the costs below.
+            for k in range(3):
+                row = heap_position[face_edge[f, k]]
+                if row >= 0:
+                    prefetch(heap_entries, row, 0)
+                    prefetch(heap_entries, (row - 1) // 4, 0)
     generation[0] += 1
     g = generation[0]
     near[v, NEAR_SCRATCH] = g
-    s = start[v]
     for i in range(count[v]):
         f = pool[s + i]
         if not face_alive[f]:
@@ -157,60 +221,6 @@ def _update_vertex_edges(vertices, vertex_quadrics, edge_quadrics, faces, face_a
 
 
 update_vertex_edges = numba.njit(cache=True)(_update_vertex_edges)
-
-
-def _turn_ok(vertices, faces, face_normals, f, moved, px, py, pz, cos_step):
-    """Would moving corner ``moved`` of face f to p keep the face from flipping?
-
-    Refused when the new normal turns more than the step limit from the current one, or
-    more than 90 degrees from the original face's normal, or the face becomes degenerate.
-    A per-step limit below 90 degrees (meshoptimizer uses 75) also stops faces from
-    folding over in small steps that each look harmless.
-    """
-    i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
-    p0x, p0y, p0z = vertices[i0, 0], vertices[i0, 1], vertices[i0, 2]
-    p1x, p1y, p1z = vertices[i1, 0], vertices[i1, 1], vertices[i1, 2]
-    p2x, p2y, p2z = vertices[i2, 0], vertices[i2, 1], vertices[i2, 2]
-    ux, uy, uz = p1x - p0x, p1y - p0y, p1z - p0z
-    vx, vy, vz = p2x - p0x, p2y - p0y, p2z - p0z
-    ox, oy, oz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
-    if i0 == moved:
-        p0x, p0y, p0z = px, py, pz
-    elif i1 == moved:
-        p1x, p1y, p1z = px, py, pz
-    else:
-        p2x, p2y, p2z = px, py, pz
-    ux, uy, uz = p1x - p0x, p1y - p0y, p1z - p0z
-    vx, vy, vz = p2x - p0x, p2y - p0y, p2z - p0z
-    nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
-    new_length = np.sqrt(nx * nx + ny * ny + nz * nz)
-    if new_length == 0.0:
-        return False
-    old_length = np.sqrt(ox * ox + oy * oy + oz * oz)
-    if old_length > 0.0 and ox * nx + oy * ny + oz * nz < cos_step * old_length * new_length:
-        return False
-    return face_normals[f, 0] * nx + face_normals[f, 1] * ny + face_normals[f, 2] * nz > 0.0
-
-
-turn_ok = numba.njit(cache=True, inline="always")(_turn_ok)
-
-
-def _faces_keep_orientation(vertices, faces, face_alive, face_normals, start, count, pool,
-                            a, b, px, py, pz, cos_step):
-    for v, other in ((a, b), (b, a)):
-        s = start[v]
-        for i in range(count[v]):
-            f = pool[s + i]
-            if not face_alive[f]:
-                continue
-            if faces[f, 0] == other or faces[f, 1] == other or faces[f, 2] == other:
-                continue  # dies with the contraction
-            if not turn_ok(vertices, faces, face_normals, f, v, px, py, pz, cos_step):
-                return False
-    return True
-
-
-faces_keep_orientation = numba.njit(cache=True)(_faces_keep_orientation)
 
 
 def _merge_edges(faces, face_alive, face_edge, face_quadrics, edge_quadrics, start, count,
@@ -404,7 +414,12 @@ def _run_contractions(cx, lists, hood, heap, record, params, max_steps):
         generation[0] += 1
         g = generation[0]
         gather(faces, face_alive, face_edge, start, count, pool, a, b, near, g)
+        for v in (a, b):
+            prefetch_neighbourhood(vertices, vertex_quadrics, edge_quadrics, face_normals,
+                                   faces, face_alive, face_edge, start, count, pool,
+                                   heap_position, v, exact)
         remove(heap_entries, heap_position, heap_size, edge)
+        prefetch_next(heap_entries, heap_size, start, count, pool, faces, face_edge, 0)
         if near[b, NEAR_TAG_A] != g:
             continue  # no face left on the edge (cannot happen: such edges leave the heap)
         if preserve_topology and check_link(
@@ -416,6 +431,7 @@ def _run_contractions(cx, lists, hood, heap, record, params, max_steps):
         cost = edge_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact,
                          rank_tolerance, quadric, position)
         px, py, pz = position[0], position[1], position[2]
+        prefetch_next(heap_entries, heap_size, start, count, pool, faces, face_edge, 1)
         if not faces_keep_orientation(vertices, faces, face_alive, face_normals, start, count,
                                       pool, a, b, px, py, pz, cos_step):
             vertex_refused[a] = 1
@@ -446,6 +462,7 @@ def _run_contractions(cx, lists, hood, heap, record, params, max_steps):
             vertex_quadrics[a, k] = quadric[k]
         vertex_alive[b] = 0
         steps += 1
+        prefetch_next(heap_entries, heap_size, start, count, pool, faces, face_edge, 2)
         update_after_contraction(vertices, vertex_quadrics, vertex_refused, edge_quadrics,
                                  faces, face_alive, face_edge, start, count, pool, near,
                                  generation, retry, heap_entries, heap_position, heap_size, a,

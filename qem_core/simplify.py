@@ -73,9 +73,13 @@ def _initial_complex(vertices: np.ndarray, faces: np.ndarray, options: BuildOpti
                      mesh_edges: MeshEdges):
     n, m = vertices.shape[0], faces.shape[0]
     weighting = WEIGHTING_CODES[options.weighting]
-    face_quadrics = np.zeros((m, QUADRIC_SIZE))
+    exact = options.error_mode == "exact"
+    # Only the exact mode reads face quadrics again (merging edge quadrics).
+    face_quadrics = np.zeros((m if exact else 0, QUADRIC_SIZE))
     face_normals = np.zeros((m, 3))
-    fill_face_quadrics(vertices, faces, weighting, face_quadrics, face_normals)
+    vertex_quadrics = np.zeros((n, QUADRIC_SIZE))
+    fill_face_quadrics(vertices, faces, weighting, face_quadrics, face_normals,
+                       vertex_quadrics)
 
     edges, face_edge, edge_face_count, edge_side = mesh_edges
     border = np.flatnonzero(edge_face_count == 1)
@@ -89,8 +93,6 @@ def _initial_complex(vertices: np.ndarray, faces: np.ndarray, options: BuildOpti
     fill_border_quadrics(vertices, border_edges, border_faces, face_normals, weighting,
                          float(options.boundary_weight), border_quadrics)
 
-    exact = options.error_mode == "exact"
-    vertex_quadrics = np.zeros((n, QUADRIC_SIZE))
     edge_quadrics = np.zeros((edges.shape[0] if exact else 0, QUADRIC_SIZE))
     sum_quadrics(faces, face_quadrics, face_edge, border, border_edges, border_quadrics,
                  vertex_quadrics, edge_quadrics, exact)

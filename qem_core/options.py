@@ -35,17 +35,21 @@ class BuildOptions:
         Weight of the plane through each open-border edge, perpendicular to its face,
         relative to a face plane of the same size. 0 lets borders erode.
     preserve_topology : bool
-        Refuse contractions that break the link condition, pinch or close a border, or
-        shrink a component below a tetrahedron. Only False with pair contraction makes
-        sense.
+        Refuse edge contractions that break the link condition, pinch or close a border,
+        or shrink a component below a tetrahedron. Whatever it says, no contraction may
+        leave a vertex without a face (every level uses all its vertices), and pairs
+        (below) never follow the link condition: joining parts is their point.
     max_face_turn_deg : float in (0, 180]
         A contraction is refused if it turns a surviving face's normal by more than this
         many degrees (from its normal before the contraction) or by more than 90 degrees
         from the normal of the original face it came from. 180 disables the per-step part.
-    pair_threshold : float, 0
-        Reserved for Garland's pair contraction (vertex pairs closer than t, as a fraction
-        of the bounding-box diagonal, that share no edge). Not implemented yet: any value
-        but 0 is refused rather than silently ignored.
+    pair_threshold : float in [0, 1]
+        Garland's t, as a fraction of the bounding-box diagonal: vertex pairs closer than
+        this that share no edge are contraction candidates too, so separate parts close to
+        each other may join (the face-turn limit still applies). Each vertex keeps at most
+        its 8 nearest such partners. Meant for gaps shorter than the edges: a larger t
+        also pairs vertices of one surface, whose joins pinch it. 0 (the default)
+        disables pair contraction.
     merge_coincident : bool
         Weld vertices with exactly equal coordinates before building (STL soups).
     """
@@ -70,11 +74,6 @@ class BuildOptions:
         _check_range("boundary_weight", self.boundary_weight, 0.0, 1e6)
         _check_range("max_face_turn_deg", self.max_face_turn_deg, 1e-6, 180.0)
         _check_range("pair_threshold", self.pair_threshold, 0.0, 1.0)
-        if self.pair_threshold > 0.0:
-            raise InvalidOptionsError(
-                f"pair_threshold={self.pair_threshold!r}: pair contraction (vertex pairs that "
-                "share no edge) is not implemented yet; leave pair_threshold at 0"
-            )
         for name in ("preserve_topology", "merge_coincident"):
             if not isinstance(getattr(self, name), bool):
                 raise InvalidOptionsError(f"{name} must be true or false")

@@ -20,6 +20,7 @@ from ._kernels.contract import (
     PARAM_PRESERVE_TOPOLOGY,
     PARAM_RANK_TOLERANCE,
     STATUS_EXHAUSTED,
+    STATUS_NEED_PAIR_POOL_SPACE,
     STATUS_NEED_POOL_SPACE,
     STATUS_NEED_RELABEL_SPACE,
     STATUS_STEPS_DONE,
@@ -29,6 +30,7 @@ from ._kernels.contract import (
 )
 from ._kernels.heap import make_heap
 from ._kernels.link import make_neighbourhood, restart_generations
+from ._kernels.pairs import candidate_pairs, make_pairs
 from ._kernels.quadrics import QUADRIC_SIZE, fill_face_quadrics
 from ._kernels.runs import reverse_runs
 from ._kernels.setup import fill_border_quadrics, fill_heap, sum_quadrics
@@ -140,7 +142,8 @@ def contract_greedily(
     max_contractions: int | None = None,
     mesh_edges: MeshEdges | None = None,
 ) -> ContractionRun:
-    """Contract edges greedily by quadric error until nothing valid is left.
+    """Contract edges (and, with ``options.pair_threshold``, near vertex pairs) greedily
+    by quadric error until nothing valid is left.
 
     vertices : (n, 3) float64, faces : (m, 3) int32, already prepared (every vertex
     referenced, no degenerate or duplicate face). ``max_contractions`` stops early (the
@@ -153,9 +156,12 @@ def contract_greedily(
     cx, edges = _initial_complex(vertices, faces, options, mesh_edges)
     params = _kernel_params(options)
     lists = make_face_lists(cx.faces, n, capacity=6 * m + 1024)
+    pairs = make_pairs(_pairs_for(vertices, edges, options.pair_threshold), n, edges.shape[0])
     hood = make_neighbourhood(n)
-    heap = make_heap(edges.shape[0])
-    fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, edges,
+    # Candidates: the edges, then the pairs; their ids are the heap's ids.
+    candidates = np.concatenate([edges, pairs.ends]) if pairs.ends.size else edges
+    heap = make_heap(candidates.shape[0])
+    fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, candidates,
               options.error_mode == "exact", RANK_TOLERANCE, heap.entries, heap.position,
               heap.size)
     record = _make_record(n, m)
@@ -164,7 +170,8 @@ def contract_greedily(
     while done < budget:
         restart_generations(hood)
         status, steps = run_contractions(
-            cx, lists, hood, heap, record, params, min(CHUNK_CONTRACTIONS, budget - done)
+            cx, lists, pairs, hood, heap, record, params,
+            min(CHUNK_CONTRACTIONS, budget - done),
         )
         done += steps
         if status == STATUS_EXHAUSTED:
@@ -172,13 +179,25 @@ def contract_greedily(
         if status == STATUS_NEED_RELABEL_SPACE:
             record = record._replace(relabel=_grown(record.relabel, -1))
         elif status == STATUS_NEED_POOL_SPACE:
-            compact(lists, cx.vertex_alive)
+            compact(lists.start, lists.count, lists.pool, lists.used, cx.vertex_alive)
             lists = lists._replace(pool=_grown(lists.pool, -1))
+        elif status == STATUS_NEED_PAIR_POOL_SPACE:
+            compact(pairs.start, pairs.count, pairs.pool, pairs.used, cx.vertex_alive)
+            pairs = pairs._replace(pool=_grown(pairs.pool, -1))
         else:
             assert status == STATUS_STEPS_DONE, status
         if progress is not None:
             progress(min(1.0, done / max(1, n - 4)))
     return ContractionRun(record, cx, done)
+
+
+def _pairs_for(vertices: np.ndarray, edges: np.ndarray, pair_threshold: float) -> np.ndarray:
+    """Garland's candidate pairs for ``BuildOptions.pair_threshold`` (a fraction of the
+    bounding-box diagonal); (0, 2) when it is 0."""
+    if pair_threshold <= 0.0:
+        return np.zeros((0, 2), np.int32)
+    diagonal = float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
+    return candidate_pairs(vertices, edges, pair_threshold * diagonal)
 
 
 def assemble_progressive_mesh(run: ContractionRun, metadata: dict) -> ProgressiveMesh:

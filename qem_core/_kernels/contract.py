@@ -22,7 +22,9 @@ once in every vertex and edge quadric. Triangle quadrics are the face quadrics t
 Candidates: every live edge is in the heap with its current cost, except edges refused by
 the link condition or the flip guard. Those stay out until the neighbourhood of one of
 their ends changes: a refused edge marks both ends, and when a neighbour of a marked
-vertex is contracted into, the vertex's missing edges go back in with fresh costs.
+vertex is contracted into, the vertex's missing edges go back in with fresh costs. With
+pair contraction on, the pairs (pairs.py) are candidates too, numbered after the edges;
+they skip the link condition. No contraction may leave a vertex without a face.
 
 The loop runs in chunks of ``max_steps`` contractions so Python can report progress, and
 stops early with a status code when an array is full (Python grows it and resumes).
@@ -39,6 +41,7 @@ import numba
 import numpy as np
 
 from .adjacency import compact
+from .guards import faces_keep_orientation, leaves_a_vertex_bare
 from .heap import cost_key, pair, remove, top, update
 from .link import (
     NEAR_EDGE_A,
@@ -50,14 +53,15 @@ from .link import (
     gather,
 )
 from .memory import borrow, prefetch
-from .orientation import faces_keep_orientation
-from .placement import place
+from .pairs import merge_pairs, update_vertex_pairs
+from .placement import edge_cost
 from .quadrics import QUADRIC_SIZE
 
 STATUS_EXHAUSTED = 0  # nothing valid left to contract
 STATUS_STEPS_DONE = 1  # max_steps contractions done, more may follow
 STATUS_NEED_RELABEL_SPACE = 2
 STATUS_NEED_POOL_SPACE = 3
+STATUS_NEED_PAIR_POOL_SPACE = 4
 
 # Indices into the float parameter vector.
 PARAM_RANK_TOLERANCE = 0
@@ -105,23 +109,6 @@ class Record(NamedTuple):
     relabel_end: np.ndarray  # (n,) int64
     relabel: np.ndarray  # (capacity,) int32 faces whose corner b became a
     counts: np.ndarray  # (3,) int64: contractions, killed used, relabel used
-
-
-def _edge_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact, rank_tolerance,
-               quadric, position):
-    """Cost and best position of contracting edge (a, b); quadric (10,) receives Q_c.
-
-    The cost does not depend on the order of a and b (sums commute; the candidates of
-    ``place`` are the same), so the heap may compute it from either end."""
-    for k in range(QUADRIC_SIZE):
-        quadric[k] = vertex_quadrics[a, k] + vertex_quadrics[b, k]
-    if exact:
-        for k in range(QUADRIC_SIZE):
-            quadric[k] -= edge_quadrics[edge, k]
-    return place(quadric, vertices, a, b, rank_tolerance, position)
-
-
-edge_cost = numba.njit(cache=True, inline="always")(_edge_cost)
 
 
 def _prefetch_neighbourhood(vertices, vertex_quadrics, edge_quadrics, face_normals, faces,
@@ -332,17 +319,24 @@ rewrite_faces = numba.njit(cache=True)(_rewrite_faces)
 
 def _update_after_contraction(vertices, vertex_quadrics, vertex_refused, edge_quadrics,
                               faces, face_alive, face_edge, start, count, pool, near,
-                              generation, retry, heap_entries, heap_position, heap_size, a,
-                              b, killed, killed_from, killed_to, exact, rank_tolerance,
-                              quadric, position):
-    """New costs for the edges of the new vertex a; edges left without a face leave the
-    heap; neighbours that had an edge refused get their missing edges back, since a's
-    change may have lifted the reason. ``retry`` is (n,) int32 scratch.
+                              generation, retry, heap_entries, heap_position, heap_size,
+                              pair_ends, pair_alive, first_pair, pair_start, pair_count,
+                              pair_pool, a, b, killed, killed_from, killed_to, exact,
+                              rank_tolerance, quadric, position):
+    """New costs for the edges (and pairs) of the new vertex a; edges left without a
+    face leave the heap; neighbours that had a candidate refused get their missing ones
+    back, since a's change may have lifted the reason. ``retry`` is (n,) int32 scratch.
     """
+    has_pairs = pair_ends.shape[0] > 0
     g = update_vertex_edges(vertices, vertex_quadrics, edge_quadrics, faces, face_alive,
                             face_edge, start, count, pool, near, generation, heap_entries,
                             heap_position, heap_size, a, False, exact, rank_tolerance,
                             quadric, position)
+    if has_pairs:
+        update_vertex_pairs(vertices, vertex_quadrics, edge_quadrics, near, generation,
+                            heap_entries, heap_position, heap_size, pair_ends, pair_alive,
+                            first_pair, pair_start, pair_count, pair_pool, a, g, False, exact,
+                            rank_tolerance, quadric, position)
     # Edge ax of a dying face abx lives on only if another face has it (always, unless
     # the input is non-manifold or topology is not preserved).
     for i in range(killed_from, killed_to):
@@ -361,16 +355,21 @@ def _update_after_contraction(vertices, vertex_quadrics, vertex_refused, edge_qu
                 retry[n_retry] = x
                 n_retry += 1
     for i in range(n_retry):
-        update_vertex_edges(vertices, vertex_quadrics, edge_quadrics, faces, face_alive,
-                            face_edge, start, count, pool, near, generation, heap_entries,
-                            heap_position, heap_size, retry[i], True, exact, rank_tolerance,
-                            quadric, position)
+        g = update_vertex_edges(vertices, vertex_quadrics, edge_quadrics, faces, face_alive,
+                                face_edge, start, count, pool, near, generation,
+                                heap_entries, heap_position, heap_size, retry[i], True, exact,
+                                rank_tolerance, quadric, position)
+        if has_pairs:
+            update_vertex_pairs(vertices, vertex_quadrics, edge_quadrics, near, generation,
+                                heap_entries, heap_position, heap_size, pair_ends, pair_alive,
+                                first_pair, pair_start, pair_count, pair_pool, retry[i], g,
+                                True, exact, rank_tolerance, quadric, position)
 
 
 update_after_contraction = numba.njit(cache=True)(_update_after_contraction)
 
 
-def _run_contractions(cx, lists, hood, heap, record, params, max_steps):
+def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps):
     """Contract greedily until max_steps are done or nothing valid is left.
 
     Returns (status, steps done). Never raises; Python reads the status.
@@ -387,6 +386,11 @@ def _run_contractions(cx, lists, hood, heap, record, params, max_steps):
     face_quadrics, edge_quadrics = borrow(cx.face_quadrics), borrow(cx.edge_quadrics)
     start, count = borrow(lists.start), borrow(lists.count)
     pool, used = borrow(lists.pool), borrow(lists.used)
+    pair_ends, pair_alive = borrow(pairs.ends), borrow(pairs.alive)
+    pair_start, pair_count = borrow(pairs.start), borrow(pairs.count)
+    pair_pool, pair_used = borrow(pairs.pool), borrow(pairs.used)
+    first_pair = pairs.first[0]
+    has_pairs = pair_ends.shape[0] > 0
     near, generation, retry = borrow(hood.near), borrow(hood.generation), borrow(hood.retry)
     heap_entries, heap_position = borrow(heap.entries), borrow(heap.position)
     heap_size = borrow(heap.size)
@@ -406,9 +410,13 @@ def _run_contractions(cx, lists, hood, heap, record, params, max_steps):
         if count[b] > count[a]:
             a, b = b, a
         if used[0] + count[a] + count[b] > pool.shape[0]:
-            compact(lists, vertex_alive)
+            compact(start, count, pool, used, vertex_alive)
             if used[0] + count[a] + count[b] > pool.shape[0]:
                 return STATUS_NEED_POOL_SPACE, steps
+        if has_pairs and pair_used[0] + pair_count[a] + pair_count[b] > pair_pool.shape[0]:
+            compact(pair_start, pair_count, pair_pool, pair_used, vertex_alive)
+            if pair_used[0] + pair_count[a] + pair_count[b] > pair_pool.shape[0]:
+                return STATUS_NEED_PAIR_POOL_SPACE, steps
         if record_counts[2] + count[b] > relabel.shape[0]:
             return STATUS_NEED_RELABEL_SPACE, steps
         generation[0] += 1
@@ -420,11 +428,20 @@ def _run_contractions(cx, lists, hood, heap, record, params, max_steps):
                                    heap_position, v, exact)
         remove(heap_entries, heap_position, heap_size, edge)
         prefetch_next(heap_entries, heap_size, start, count, pool, faces, face_edge, 0)
-        if near[b, NEAR_TAG_A] != g:
+        if edge >= first_pair:
+            # A pair: no face joins a and b, and none of the link condition applies.
+            if near[b, NEAR_TAG_A] == g:
+                pair_alive[edge - first_pair] = 0  # an edge now (cannot happen: such die)
+                continue
+        elif near[b, NEAR_TAG_A] != g:
             continue  # no face left on the edge (cannot happen: such edges leave the heap)
-        if preserve_topology and check_link(
+        elif preserve_topology and check_link(
             faces, face_alive, start, count, pool, a, b, near, g
         ) != REFUSE_NONE:
+            vertex_refused[a] = 1
+            vertex_refused[b] = 1
+            continue
+        if leaves_a_vertex_bare(faces, face_alive, start, count, pool, near, a, b):
             vertex_refused[a] = 1
             vertex_refused[b] = 1
             continue
@@ -440,6 +457,9 @@ def _run_contractions(cx, lists, hood, heap, record, params, max_steps):
         merge_edges(faces, face_alive, face_edge, face_quadrics, edge_quadrics, start, count,
                     pool, near, generation, heap_entries, heap_position, heap_size, a, b, g,
                     exact)
+        if has_pairs:
+            merge_pairs(pair_ends, pair_alive, pair_start, pair_count, pair_pool, pair_used,
+                        first_pair, heap_entries, heap_position, heap_size, a, b)
         j = record_counts[0]
         record_a[j] = a
         record_b[j] = b
@@ -465,8 +485,9 @@ def _run_contractions(cx, lists, hood, heap, record, params, max_steps):
         prefetch_next(heap_entries, heap_size, start, count, pool, faces, face_edge, 2)
         update_after_contraction(vertices, vertex_quadrics, vertex_refused, edge_quadrics,
                                  faces, face_alive, face_edge, start, count, pool, near,
-                                 generation, retry, heap_entries, heap_position, heap_size, a,
-                                 b, killed, killed_from, n_killed, exact,
+                                 generation, retry, heap_entries, heap_position, heap_size,
+                                 pair_ends, pair_alive, first_pair, pair_start, pair_count,
+                                 pair_pool, a, b, killed, killed_from, n_killed, exact,
                                  rank_tolerance, quadric, position)
     return STATUS_STEPS_DONE, steps
 

@@ -15,7 +15,7 @@ plane), and it is the null vector of A - λI, taken from a cross product of its 
 import numba
 import numpy as np
 
-from .quadrics import evaluate
+from .quadrics import QUADRIC_SIZE, evaluate
 
 
 def _eigenvalues3(a00, a01, a02, a11, a12, a22):
@@ -161,3 +161,21 @@ def _place(quadric, vertices, a, b, rank_tolerance, out):
 
 
 place = numba.njit(cache=True, inline="always")(_place)
+
+
+def _edge_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact, rank_tolerance,
+               quadric, position):
+    """Cost and best position of contracting edge (a, b); quadric (10,) receives Q_c.
+
+    The cost does not depend on the order of a and b (sums commute; the candidates of
+    ``place`` are the same), so the heap may compute it from either end. Candidates past
+    the edges (pairs, which share no face and so no plane) subtract nothing."""
+    for k in range(QUADRIC_SIZE):
+        quadric[k] = vertex_quadrics[a, k] + vertex_quadrics[b, k]
+    if exact and edge < edge_quadrics.shape[0]:
+        for k in range(QUADRIC_SIZE):
+            quadric[k] -= edge_quadrics[edge, k]
+    return place(quadric, vertices, a, b, rank_tolerance, position)
+
+
+edge_cost = numba.njit(cache=True, inline="always")(_edge_cost)

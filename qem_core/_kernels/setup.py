@@ -5,7 +5,7 @@ import numba
 import numpy as np
 
 from . import heap as heap_ops
-from .contract import edge_cost
+from .placement import edge_cost
 from .quadrics import QUADRIC_SIZE, boundary_quadric
 
 
@@ -55,7 +55,10 @@ fill_border_quadrics = numba.njit(cache=True)(_fill_border_quadrics)
 
 def _fill_heap(vertices, vertex_quadrics, edge_quadrics, edges, exact, rank_tolerance,
                heap_entries, heap_position, heap_size):
-    """Put every edge in the heap with its cost, then order it once (O(E)).
+    """Put every candidate in the heap with its cost, then order it once (O(E)).
+
+    edges : (E + P, 2) int32, the edges and then the pairs (pairs.py); row i is
+    candidate i.
 
     The costs are independent, so they are computed in parallel, each edge by the same
     arithmetic as in the loop: the result does not depend on the number of threads.

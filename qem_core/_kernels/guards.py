@@ -1,12 +1,18 @@
-"""The flip guard: a contraction is refused if it would flip or fold a surviving face.
+"""Refusals besides the link condition: flipped faces and bare vertices.
 
-Each face that survives a contraction (a, b) -> c has its corner a or b moved to c. The
-face's normal after the move is compared with its normal before (a per-step limit) and
-with the normal of the original input face it descends from (never past 90 degrees).
+The flip guard: each face that survives a contraction (a, b) -> c has its corner a or b
+moved to c. The face's normal after the move is compared with its normal before (a
+per-step limit) and with the normal of the original input face it descends from (never
+past 90 degrees).
+
+Bare vertices: a contraction must not leave a vertex without a face, since every level
+uses all of its vertices.
 """
 
 import numba
 import numpy as np
+
+from .link import NEAR_COUNT_A
 
 
 def _turn_ok(vertices, faces, face_normals, f, moved, px, py, pz, cos_step):
@@ -61,3 +67,38 @@ def _faces_keep_orientation(vertices, faces, face_alive, face_normals, start, co
 
 
 faces_keep_orientation = numba.njit(cache=True)(_faces_keep_orientation)
+
+
+def _leaves_a_vertex_bare(faces, face_alive, start, count, pool, near, a, b):
+    """Would contracting a and b leave a vertex with no face? A level must use every one
+    of its vertices. It cannot happen on a manifold under the link condition; it can
+    once pairs have joined parts, or without the link condition: all faces of an
+    opposite vertex x may be faces abx (a lone triangle, faces doubled by a join), or
+    a and b may have no other face. ``count`` holds live faces only; ``near`` is
+    gathered for a and b."""
+    n_dying = 0
+    s = start[a]
+    for i in range(count[a]):
+        f = pool[s + i]
+        if not face_alive[f]:
+            continue
+        c0, c1, c2 = faces[f, 0], faces[f, 1], faces[f, 2]
+        if c0 != b and c1 != b and c2 != b:
+            continue
+        n_dying += 1
+        x = c0 + c1 + c2 - a - b
+        if count[x] > near[x, NEAR_COUNT_A]:
+            continue  # x has a face without a, which survives (the usual case)
+        dying_at_x = 0
+        for j in range(count[a]):
+            h = pool[s + j]
+            if face_alive[h] and (faces[h, 0] == x or faces[h, 1] == x or faces[h, 2] == x) and (
+                faces[h, 0] == b or faces[h, 1] == b or faces[h, 2] == b
+            ):
+                dying_at_x += 1
+        if dying_at_x == count[x]:
+            return True
+    return count[a] + count[b] == 2 * n_dying
+
+
+leaves_a_vertex_bare = numba.njit(cache=True)(_leaves_a_vertex_bare)

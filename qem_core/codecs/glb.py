@@ -4,19 +4,26 @@ Reader: every triangle primitive (mode 4) of every entry of ``meshes`` is read a
 primitives are concatenated, indices offset. Node transforms and the scene graph are
 ignored: positions are returned in each mesh's own coordinates, and a mesh used by
 several nodes appears once. Attributes: POSITION (required), NORMAL -> "normal",
-COLOR_0 -> "color", TEXCOORD_0 -> "uv" (an attribute is kept only when every primitive
-has it; normalised integer components are scaled to [0, 1]). glTF's texture origin is
-the top-left corner, the Mesh's (like OBJ's) the bottom-left: v is flipped on the way in
-and out. The base-colour image of the first primitive's material, when embedded (a
-bufferView or a data: URI), becomes `Mesh.texture`. Sparse accessors, external files
-and Draco compression are refused.
+COLOR_0 -> "color", TEXCOORD_0 -> `Mesh.corner_uvs` (an attribute is kept only when
+every primitive has it; normalised integer components are scaled to [0, 1]). glTF's
+texture origin is the top-left corner, the Mesh's (like OBJ's) the bottom-left: v is
+flipped on the way in and out. glTF vertices are per (position, attribute) tuple, so a
+texture seam arrives as several vertices at one position: the reader welds vertices
+whose position, normal and colour are bit for bit equal, keeping the first of each
+group in file order, and their UVs stay per corner; the "uv" vertex attribute is given
+too when no welded vertex has two UVs. The base-colour image of the first primitive's
+material, when embedded (a bufferView or a data: URI), becomes `Mesh.texture`. Sparse
+accessors, external files and Draco compression are refused.
 
 Writer: one mesh, one primitive, one node; POSITION float32 with min/max, indices
-uint16 when there are at most 65535 vertices (65535 itself is the reserved restart
-value) else uint32, NORMAL (normalised to unit length, as glTF requires), COLOR_0
-float32 in [0, 1], TEXCOORD_0 float32; a material that is not metallic, with the
-texture (PNG or JPEG bytes, embedded) as base colour when one is given together with
-UVs. docs/formats.md has the exact layout.
+uint16 when there are at most 65535 (glTF) vertices (65535 itself is the reserved
+restart value) else uint32, NORMAL (normalised to unit length, as glTF requires),
+COLOR_0 float32 in [0, 1], TEXCOORD_0 float32; a material that is not metallic, with
+the texture (PNG or JPEG bytes, embedded) as base colour when one is given together
+with UVs. With `corner_uvs`, each vertex is written once per distinct UV of its corners
+(sorted by vertex, then UV bits; a vertex no face uses once, with UV (0, 0)), its
+normal and colour copied; the "uv" attribute is used only without `corner_uvs`.
+docs/formats.md has the exact layout.
 """
 
 from __future__ import annotations
@@ -29,6 +36,7 @@ import numpy as np
 
 from ..errors import InvalidMeshError, MeshFormatError
 from ..mesh import Mesh
+from ._corners import split_at_seams, weld
 from ._images import image_media_type
 
 __all__ = ["read_glb", "write_glb", "is_glb"]
@@ -51,6 +59,9 @@ _ARRAY_BUFFER = 34962
 _ELEMENT_ARRAY_BUFFER = 34963
 _FLOAT = 5126
 _LINEAR, _LINEAR_MIPMAP_LINEAR, _REPEAT = 9729, 9987, 10497
+_GENERATOR = "qem-lod"
+# Primitive extras key: a bufferView of uint32 LE, the Mesh vertex of each glTF vertex.
+_VERTEX_OF = "qem_lod_vertex_of"
 
 
 def is_glb(data: bytes) -> bool:
@@ -75,8 +86,20 @@ def write_glb(
     faces: np.ndarray,
     vertex_attributes: dict[str, np.ndarray],
     texture: bytes | None = None,
+    corner_uvs: np.ndarray | None = None,
 ) -> bytes:
     """Encode as a GLB: see the module docstring."""
+    uv = vertex_attributes.get("uv")
+    source = None
+    if corner_uvs is not None:
+        # glTF attributes are per vertex: one glTF vertex per (position, corner UV).
+        n_input = vertices.shape[0]
+        source, uv, faces = split_at_seams(faces, corner_uvs, n_input)
+        if source.size == n_input:
+            source = None  # no seam: the vertices as given
+        else:
+            vertices = vertices[source]
+            vertex_attributes = {k: v[source] for k, v in vertex_attributes.items()}
     blob = _BinaryBuilder()
     positions = vertices.astype(np.float32)
     attributes = {
@@ -94,18 +117,23 @@ def write_glb(
     if color is not None:
         color = np.clip(color, 0.0, 1.0).astype(np.float32)
         attributes["COLOR_0"] = blob.accessor(color, f"VEC{color.shape[1]}", _ARRAY_BUFFER)
-    uv = vertex_attributes.get("uv")
     if uv is not None:
+        uv = uv.astype(np.float64)
         flipped = np.stack([uv[:, 0], 1.0 - uv[:, 1]], axis=1).astype(np.float32)
         attributes["TEXCOORD_0"] = blob.accessor(flipped, "VEC2", _ARRAY_BUFFER)
     index_type = "<u2" if vertices.shape[0] <= 0xFFFF else "<u4"
     indices = blob.accessor(faces.astype(index_type).reshape(-1), "SCALAR", _ELEMENT_ARRAY_BUFFER)
+    extras = {}
+    if source is not None:
+        # Which input vertex each glTF vertex copies, so that the reader undoes exactly
+        # this split (and welds nothing else).
+        extras[_VERTEX_OF] = blob.view(source.astype("<u4").tobytes(), target=None)
     material: dict = {
         "pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 1.0},
         "doubleSided": False,
     }
     gltf: dict = {
-        "asset": {"version": "2.0", "generator": "qem-lod"},
+        "asset": {"version": "2.0", "generator": _GENERATOR},
         "scene": 0,
         "scenes": [{"nodes": [0]}],
         "nodes": [{"mesh": 0}],
@@ -117,6 +145,7 @@ def write_glb(
                         "indices": indices,
                         "mode": _TRIANGLES,
                         "material": 0,
+                        **({"extras": extras} if extras else {}),
                     }
                 ]
             }
@@ -277,12 +306,14 @@ def _read_meshes(gltf: dict, buffers: list[bytes]) -> Mesh:
         raise MeshFormatError("Draco-compressed GLB is not supported; export without Draco")
     positions, faces, attributes, offset = [], [], [], 0
     first_primitive = None
+    n_primitives = 0
     for mesh in gltf.get("meshes", []):
         for primitive in mesh["primitives"]:
             if primitive.get("mode", _TRIANGLES) != _TRIANGLES:
                 continue  # points and lines carry no surface
             if first_primitive is None:
                 first_primitive = primitive
+            n_primitives += 1
             names = primitive["attributes"]
             vertices = _accessor(gltf, buffers, names["POSITION"], "POSITION", normalized=False)
             if vertices.shape[1] != 3:
@@ -314,15 +345,65 @@ def _read_meshes(gltf: dict, buffers: list[bytes]) -> Mesh:
             vertex_attributes[name] = np.concatenate([a[name] for a in attributes]).astype(
                 np.float32
             )
-    if "uv" in vertex_attributes:
-        vertex_attributes["uv"] = vertex_attributes["uv"][:, :2]
-        vertex_attributes["uv"][:, 1] = 1.0 - vertex_attributes["uv"][:, 1]
+    vertices = np.concatenate(positions)
+    all_faces = np.concatenate(faces)
+    if all_faces.size and (all_faces.min() < 0 or all_faces.max() >= vertices.shape[0]):
+        bad = int(all_faces.min() if all_faces.min() < 0 else all_faces.max())
+        raise MeshFormatError(
+            f"GLB triangle has vertex index {bad}, but the primitives have "
+            f"{vertices.shape[0]} vertices: the file is damaged"
+        )
+    corner_uvs = None
+    uv = vertex_attributes.pop("uv", None)
+    if uv is not None:
+        uv = uv[:, :2].astype(np.float64)
+        uv[:, 1] = 1.0 - uv[:, 1]
+        uv = uv.astype(np.float32)
+        corner_uvs = uv[all_faces]
+    if n_primitives == 1 and _VERTEX_OF in (first_primitive.get("extras") or {}):
+        kept, index = _unsplit(gltf, buffers, first_primitive["extras"][_VERTEX_OF], vertices)
+    elif gltf.get("asset", {}).get("generator") == _GENERATOR:
+        kept = index = np.arange(vertices.shape[0])  # qem-lod split nothing
+    else:
+        # Weld what an exporter split at texture seams (the same position, normal and
+        # colour, another UV); vertices that differ in anything but UV stay apart.
+        kept, index = weld([vertices, *vertex_attributes.values()])
+    if kept.size < vertices.shape[0]:
+        vertices = vertices[kept]
+        vertex_attributes = {k: v[kept] for k, v in vertex_attributes.items()}
+        all_faces = index[all_faces]
+    if uv is not None and np.array_equal(uv[kept][index], uv):
+        vertex_attributes["uv"] = np.ascontiguousarray(uv[kept])  # no seam: one UV each
     return Mesh(
-        vertices=np.concatenate(positions),
-        faces=np.concatenate(faces),
+        vertices=vertices,
+        faces=all_faces,
         vertex_attributes=vertex_attributes,
+        corner_uvs=corner_uvs,
         texture=_base_color_image(gltf, buffers, first_primitive),
     )
+
+
+def _unsplit(
+    gltf: dict, buffers: list[bytes], view: object, vertices: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(kept, index) as `weld` gives them, from the writer's record of which vertex
+    each glTF vertex copies: output vertex j is the first glTF vertex that copies j."""
+    buffer, start, length, _ = _view_bytes(gltf, buffers, view)
+    if length != 4 * vertices.shape[0]:
+        raise MeshFormatError(
+            f"GLB extras {_VERTEX_OF!r} holds {length} bytes; it needs 4 per vertex "
+            f"({4 * vertices.shape[0]}): the file is damaged"
+        )
+    source = np.frombuffer(buffer, "<u4", vertices.shape[0], start).astype(np.int64)
+    n_kept = int(source.max()) + 1 if source.size else 0
+    first = np.full(min(n_kept, source.size), -1, dtype=np.int64)
+    if n_kept <= source.size:
+        first[source[::-1]] = np.arange(source.size - 1, -1, -1)
+    if n_kept > source.size or (first < 0).any():
+        raise MeshFormatError(
+            f"GLB extras {_VERTEX_OF!r} skips a vertex number: the file is damaged"
+        )
+    return first, source
 
 
 def _item(gltf: dict, key: str, index: object) -> dict:

@@ -18,6 +18,9 @@ decodes from):
     indices         bin: 3m little-endian values, 0-based, counter-clockwise triangles
     attributes      (optional) map name -> {"components": k, "type": "f32", "data": bin
                     of n*k little-endian float32}; names "normal", "color", "uv"
+    corner_uvs      (optional) {"type": "f32", "data": bin of m*3*2 little-endian
+                    float32}: u v of each face corner, face by face, in the order of
+                    the indices (texture seams kept; origin bottom-left)
     texture         (optional) bin, the image bytes; texture_type its media type
     name            (optional) the mesh's name
 
@@ -56,6 +59,7 @@ def write_msgpack(
     faces: np.ndarray,
     vertex_attributes: dict[str, np.ndarray],
     texture: bytes | None = None,
+    corner_uvs: np.ndarray | None = None,
     *,
     quantize_bits: int | None = None,
     grid_box: tuple[np.ndarray, np.ndarray] | None = None,
@@ -108,6 +112,8 @@ def write_msgpack(
             }
             for key, values in sorted(vertex_attributes.items())
         }
+    if corner_uvs is not None:
+        message["corner_uvs"] = {"type": "f32", "data": corner_uvs.astype("<f4").tobytes()}
     if texture is not None:
         message["texture"] = bytes(texture)
         message["texture_type"] = image_media_type(texture) or "application/octet-stream"
@@ -165,6 +171,12 @@ def read_msgpack(data: bytes) -> Mesh:
                 f"attribute {key!r} must be f32 with {_ATTRIBUTE_WIDTHS[key]} components"
             )
         attributes[key] = _array(entry, "data", "<f4", n_vertices * width).reshape(-1, width)
+    corner_uvs = None
+    entry = message.get("corner_uvs")
+    if entry is not None:
+        if not isinstance(entry, dict) or entry.get("type") != "f32":
+            raise MeshFormatError("'corner_uvs' must be a map {'type': 'f32', 'data': bin}")
+        corner_uvs = _array(entry, "data", "<f4", n_faces * 6).reshape(-1, 3, 2)
     texture = message.get("texture")
     if texture is not None and not isinstance(texture, bytes):
         raise MeshFormatError("'texture' must be bin (the image bytes)")
@@ -173,6 +185,7 @@ def read_msgpack(data: bytes) -> Mesh:
         vertices=vertices.reshape(-1, 3),
         faces=faces.reshape(-1, 3),
         vertex_attributes={k: v.astype(np.float32) for k, v in attributes.items()},
+        corner_uvs=None if corner_uvs is None else corner_uvs.astype(np.float32),
         texture=texture,
         name=name if isinstance(name, str) else None,
     )

@@ -1,4 +1,4 @@
-"""Wavefront OBJ: reader and writer (geometry only).
+"""Wavefront OBJ: reader and writer.
 
 Reads ``v x y z`` (a 6-number ``v x y z r g b`` on every line gives "color"), ``vt u v``,
 ``vn x y z`` and ``f`` lines with corners ``v``, ``v/vt``, ``v//vn`` or ``v/vt/vn``,
@@ -11,9 +11,13 @@ and the same rule turns ``vn`` into the "normal" attribute. Everything else (``m
 Lines are found with one regular expression and their numbers parsed by numpy in bulk;
 a Python loop touches each line once, to sort it by keyword.
 
-Writes ``v`` (with ``r g b`` when colours are given), ``vt`` and ``vn`` (one per vertex,
-when given) and ``f a/a/a b/b/b c/c/c`` lines; values are float32 written with 9
-significant digits, so they read back exactly.
+Writes ``v`` (``v x y z r g b`` when colours are given: the common extension, alpha
+dropped), ``vt`` and ``vn`` lines and ``f`` lines ``v``, ``v/vt``, ``v//vn`` or
+``v/vt/vn``. UVs: with `corner_uvs`, one ``vt`` line per distinct (u, v) pair and each
+corner names its own (seams are kept as written); else the "uv" attribute, one ``vt``
+per vertex. Normals: one ``vn`` per vertex. Values are float32 written with 9
+significant digits, so they read back exactly. No ``mtllib``: the writer returns one
+file's bytes, and an .mtl file and the image would have to lie next to it.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ import numpy as np
 
 from ..errors import MeshFormatError
 from ..mesh import Mesh
+from ._corners import per_vertex
 from ._polygons import fan_corners
 from ._text import count_tokens, parse_lines, parse_numbers
 
@@ -83,31 +88,38 @@ def write_obj(
     faces: np.ndarray,
     vertex_attributes: dict[str, np.ndarray],
     texture: bytes | None = None,
+    corner_uvs: np.ndarray | None = None,
 ) -> bytes:
-    """Encode as OBJ text. The texture, if any, is not stored (OBJ keeps images in
-    separate files named by an .mtl file)."""
+    """Encode as OBJ text: see the module docstring. The texture, if any, is not
+    stored: OBJ names its image in a separate .mtl file, and this writer returns one
+    file's bytes."""
     color = vertex_attributes.get("color")
-    uv = vertex_attributes.get("uv")
     normal = vertex_attributes.get("normal")
     columns = [vertices]
     if color is not None:
         columns.append(color[:, :3])
     parts = [b"# qem-lod\n", _format_rows("v", np.hstack(columns))]
-    if uv is not None:
-        parts.append(_format_rows("vt", uv))
+    one_based = faces.astype(np.int64) + 1
+    # One index per stored table: v, then vt and vn when present.
+    slots = [one_based]
+    if corner_uvs is not None:
+        # Each distinct (u, v) once; a seam is corners of one position naming other vt.
+        uv_bits = np.ascontiguousarray(corner_uvs, dtype=np.float32).reshape(-1, 2)
+        table, uv_index = np.unique(uv_bits.view(np.uint64).reshape(-1), return_inverse=True)
+        parts.append(_format_rows("vt", table.view(np.float32).reshape(-1, 2)))
+        slots.append(uv_index.reshape(faces.shape) + 1)
+    elif "uv" in vertex_attributes:
+        parts.append(_format_rows("vt", vertex_attributes["uv"]))
+        slots.append(one_based)
     if normal is not None:
         parts.append(_format_rows("vn", normal))
-    one_based = faces.astype(np.int64) + 1
-    # One index per stored table (v, then vt and vn when present): "v", "v/vt", "v//vn"
-    # or "v/vt/vn"; every table has one row per vertex, so the indices are equal.
-    slots = 1 + (uv is not None) + (normal is not None)
-    corners = np.repeat(one_based[:, :, None], slots, axis=2)
-    corner_format = {
-        (False, False): "%d",
-        (True, False): "%d/%d",
-        (False, True): "%d//%d",
-        (True, True): "%d/%d/%d",
-    }[(uv is not None, normal is not None)]
+    corner_format = "%d"
+    if len(slots) > 1:
+        corner_format += "/%d"
+    if normal is not None:
+        corner_format += "/%d" if len(slots) > 1 else "//%d"
+        slots.append(one_based)
+    corners = np.stack(slots, axis=2)
     line = "f " + " ".join([corner_format] * 3) + "\n"
     parts.append(((line * faces.shape[0]) % tuple(corners.ravel().tolist())).encode("ascii"))
     return b"".join(parts)
@@ -222,9 +234,4 @@ def _per_vertex(
     """
     if table.shape[0] == n_vertices and np.array_equal(v_index, value_index):
         return table
-    corner_values = table[value_index]
-    per_vertex = np.zeros((n_vertices, table.shape[1]), dtype=table.dtype)
-    per_vertex[v_index] = corner_values
-    if np.array_equal(per_vertex[v_index], corner_values):
-        return per_vertex
-    return None
+    return per_vertex(v_index, table[value_index], n_vertices)

@@ -9,7 +9,9 @@ in Paul Bourke's "PLY - Polygon File Format" page):
   float colours above 1 are taken as 0..255); ``s t``, ``u v``, ``texture_u texture_v``
   or ``texture_s texture_t`` -> "uv".
 - ``face`` element: list ``vertex_indices`` (or ``vertex_index``) of any integer count
-  and index type; polygons are fan-triangulated.
+  and index type; polygons are fan-triangulated. A list ``texcoord`` (MeshLab's
+  per-corner UVs: u v for each corner, 2k values for a k-gon) -> `Mesh.corner_uvs`,
+  and also "uv" when the vertex element has none and no vertex has two UVs.
 - Every other element and property, lists included, is skipped.
 
 Binary elements are mapped with one structured numpy dtype when their lists all have the
@@ -19,7 +21,8 @@ before anything is allocated.
 
 Writes binary little-endian PLY: float32 ``x y z``, float32 ``nx ny nz``, uchar
 ``red green blue [alpha]``, float32 ``s t``, and faces as ``list uchar int
-vertex_indices``. docs/formats.md has the exact layout.
+vertex_indices`` followed, with `corner_uvs`, by ``list uchar float texcoord`` (6
+values, u v per corner, as MeshLab writes them). docs/formats.md has the exact layout.
 """
 
 from __future__ import annotations
@@ -32,7 +35,8 @@ import numpy as np
 from ..errors import MeshFormatError
 from ..mesh import Mesh
 from . import _ply_records
-from ._polygons import fan_triangulate
+from ._corners import per_vertex
+from ._polygons import fan_corners, fan_triangulate
 from ._text import parse_numbers
 
 __all__ = ["read_ply", "write_ply"]
@@ -53,6 +57,8 @@ _COLOR_NAMES = (
     ("diffuse_red", "diffuse_green", "diffuse_blue", "diffuse_alpha"),
     ("r", "g", "b", "a"),
 )
+# MeshLab's per-corner UVs: a face list of u v per corner.
+_TEXCOORD = "texcoord"
 _UV_NAMES = (("s", "t"), ("u", "v"), ("texture_u", "texture_v"), ("texture_s", "texture_t"))
 
 
@@ -110,9 +116,18 @@ def read_ply(data: bytes) -> Mesh:
             "PLY 'face' element has no list property 'vertex_indices' or 'vertex_index' "
             f"(it has {[p.name for p in by_name['face'].properties]})"
         )
-    wanted = {"vertex": _vertex_names(by_name["vertex"]), "face": {face_list}}
+    texcoord = _find(by_name["face"], _TEXCOORD)
+    face_names = {face_list}
+    if texcoord is not None and texcoord.count_dtype is not None:
+        face_names.add(_TEXCOORD)
+    wanted = {"vertex": _vertex_names(by_name["vertex"]), "face": face_names}
     values = _read_elements(data, header, wanted)
-    return _build_mesh(by_name["vertex"], values["vertex"], values["face"][face_list])
+    return _build_mesh(
+        by_name["vertex"],
+        values["vertex"],
+        values["face"][face_list],
+        values["face"].get(_TEXCOORD),
+    )
 
 
 def write_ply(
@@ -120,9 +135,10 @@ def write_ply(
     faces: np.ndarray,
     vertex_attributes: dict[str, np.ndarray],
     texture: bytes | None = None,
+    corner_uvs: np.ndarray | None = None,
 ) -> bytes:
-    """Encode as binary little-endian PLY. The texture, if any, is not stored (PLY has
-    no place for image bytes)."""
+    """Encode as binary little-endian PLY; `corner_uvs` as the face list ``texcoord``.
+    The texture, if any, is not stored (PLY has no place for image bytes)."""
     fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
     normal = vertex_attributes.get("normal")
     color = vertex_attributes.get("color")
@@ -146,9 +162,15 @@ def write_ply(
     if uv is not None:
         records["s"] = uv[:, 0]
         records["t"] = uv[:, 1]
-    face_records = np.zeros(faces.shape[0], dtype=[("n", "u1"), ("v", "<i4", (3,))])
+    face_fields = [("n", "u1"), ("v", "<i4", (3,))]
+    if corner_uvs is not None:
+        face_fields += [("n_uv", "u1"), ("uv", "<f4", (6,))]
+    face_records = np.zeros(faces.shape[0], dtype=face_fields)
     face_records["n"] = 3
     face_records["v"] = faces
+    if corner_uvs is not None:
+        face_records["n_uv"] = 6
+        face_records["uv"] = corner_uvs.reshape(-1, 6)
     type_names = {"<f4": "float", "u1": "uchar"}
     lines = [
         "ply",
@@ -158,6 +180,7 @@ def write_ply(
         *(f"property {type_names[t]} {name}" for name, t in fields),
         f"element face {faces.shape[0]}",
         "property list uchar int vertex_indices",
+        *([f"property list uchar float {_TEXCOORD}"] if corner_uvs is not None else []),
         "end_header",
     ]
     header = ("\n".join(lines) + "\n").encode("ascii")
@@ -477,7 +500,10 @@ def _empty_values(element: _Element, wanted: set[str]) -> _Values:
 
 
 def _build_mesh(
-    vertex: _Element, vertex_values: _Values, face_list: tuple[np.ndarray, np.ndarray]
+    vertex: _Element,
+    vertex_values: _Values,
+    face_list: tuple[np.ndarray, np.ndarray],
+    texcoord: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Mesh:
     """Assemble a Mesh from the decoded vertex properties and the face list."""
 
@@ -505,13 +531,36 @@ def _build_mesh(
     counts, items = face_list
     indices = _as_indices(items)
     faces = fan_triangulate(counts, indices, "PLY face")
+    corner_uvs = None
+    if texcoord is not None:
+        corner_uvs = _corner_uvs(counts, texcoord)
+        in_range = faces.size and faces.min() >= 0 and faces.max() < vertices.shape[0]
+        if "uv" not in attributes and in_range:
+            uv = per_vertex(faces.reshape(-1), corner_uvs.reshape(-1, 2), vertices.shape[0])
+            if uv is not None:
+                attributes["uv"] = uv
     return Mesh(
         vertices=vertices,
         faces=faces,
         vertex_attributes={
             k: np.ascontiguousarray(v, dtype=np.float32) for k, v in attributes.items()
         },
+        corner_uvs=corner_uvs,
     )
+
+
+def _corner_uvs(corner_counts: np.ndarray, texcoord: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """(m, 3, 2) float32 UVs of the fan triangles' corners from the ``texcoord`` face
+    list, which holds u v for each corner of its polygon (MeshLab's layout)."""
+    uv_counts, uv_items = texcoord
+    if not np.array_equal(uv_counts, 2 * np.asarray(corner_counts)):
+        face = int(np.flatnonzero(uv_counts != 2 * np.asarray(corner_counts))[0])
+        raise MeshFormatError(
+            f"PLY face {face} has {int(corner_counts[face])} corners but "
+            f"{int(uv_counts[face])} '{_TEXCOORD}' values; it needs u v per corner"
+        )
+    corner_uv = uv_items.astype(np.float32).reshape(-1, 2)
+    return corner_uv[fan_corners(corner_counts, "PLY face")]
 
 
 def _colors(channels: list[np.ndarray], declared: list[np.dtype]) -> np.ndarray:

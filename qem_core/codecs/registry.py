@@ -18,6 +18,7 @@ import numpy as np
 from ..errors import InvalidMeshError, InvalidOptionsError, MeshFormatError
 from ..mesh import Mesh
 from ..prepare import validate_mesh_arrays
+from ._corners import checked_corner_uvs, finite_float32
 from .glb import is_glb, read_glb, write_glb
 from .msgpack_mesh import is_msgpack_mesh, read_msgpack, write_msgpack
 from .obj import read_obj, write_obj
@@ -25,7 +26,7 @@ from .off import is_off, read_off
 from .ply import read_ply, write_ply
 from .stl import is_ascii_stl, is_binary_stl, read_stl
 
-__all__ = ["MEDIA_TYPES", "load_mesh", "encode_mesh", "decode_msgpack_mesh"]
+__all__ = ["MEDIA_TYPES", "load_mesh", "encode_mesh", "write_mesh", "decode_msgpack_mesh"]
 
 _READERS: dict[str, Callable[[bytes], Mesh]] = {
     "ply": read_ply,
@@ -91,8 +92,8 @@ def load_mesh(source: MeshSource, format: str | None = None, name: str | None = 
     vertices, faces = validate_mesh_arrays(mesh.vertices, mesh.faces, what=label)
     attributes = _checked_attributes(mesh.vertex_attributes, vertices.shape[0], label)
     corner_uvs = mesh.corner_uvs
-    if corner_uvs is not None and not np.isfinite(corner_uvs).all():
-        raise InvalidMeshError(f"{label}: texture coordinates hold NaN or infinite values")
+    if corner_uvs is not None:
+        corner_uvs = checked_corner_uvs(corner_uvs, faces.shape[0], label)
     return Mesh(
         vertices=vertices,
         faces=faces,
@@ -114,6 +115,7 @@ def encode_mesh(
     format: str,
     vertex_attributes: dict[str, object] | None = None,
     texture: bytes | None = None,
+    corner_uvs: object | None = None,
     *,
     quantize_bits: int | None = None,
     grid_box: tuple[object, object] | None = None,
@@ -125,6 +127,11 @@ def encode_mesh(
     vertex_attributes : optional "normal" (n, 3), "color" (n, 3 or 4) in [0, 1],
         "uv" (n, 2) with the origin at the bottom-left of the image.
     texture : optional PNG or JPEG bytes; stored by "glb" (with UVs) and "msgpack".
+    corner_uvs : optional (m, 3, 2) UVs per face corner (origin bottom-left), seams
+        included; every format keeps them per corner: OBJ ``vt`` per corner, PLY face
+        list ``texcoord``, GLB one vertex per (position, UV) pair, msgpack
+        "corner_uvs". Where both are given, corner_uvs win over the "uv" attribute in
+        OBJ and GLB; PLY and msgpack store both.
     quantize_bits : "msgpack" only: None stores float32 positions, 16 (or 1..15) stores
         uint16 positions on a grid of that many bits over the bounding box, or over
         `grid_box` = (low, high) when given (e.g. the split stream's grid).
@@ -142,19 +149,46 @@ def encode_mesh(
     attributes = _checked_attributes(vertex_attributes or {}, vertices.shape[0], "mesh")
     if texture is not None and not isinstance(texture, bytes | bytearray):
         raise InvalidMeshError("texture must be the bytes of a PNG or JPEG image")
+    if corner_uvs is not None:
+        corner_uvs = checked_corner_uvs(corner_uvs, faces.shape[0], "mesh")
     if fmt == "msgpack":
         return write_msgpack(
             vertices,
             faces,
             attributes,
             texture,
+            corner_uvs,
             quantize_bits=quantize_bits,
             grid_box=grid_box,
             name=name,
         )
     if quantize_bits is not None or grid_box is not None:
         raise InvalidOptionsError(f"quantize_bits applies to 'msgpack' only, not {fmt!r}")
-    return _WRITERS[fmt](vertices, faces, attributes, texture)
+    return _WRITERS[fmt](vertices, faces, attributes, texture, corner_uvs)
+
+
+def write_mesh(
+    mesh: Mesh,
+    format: str,
+    *,
+    quantize_bits: int | None = None,
+    grid_box: tuple[object, object] | None = None,
+) -> bytes:
+    """Encode a `Mesh` (positions, faces, vertex attributes, corner UVs, texture and,
+    for "msgpack", its name) as `format`: `encode_mesh` with the mesh's fields."""
+    if not isinstance(mesh, Mesh):
+        raise InvalidMeshError(f"write_mesh takes a qem_core Mesh, not {type(mesh).__name__}")
+    return encode_mesh(
+        mesh.vertices,
+        mesh.faces,
+        format,
+        mesh.vertex_attributes,
+        mesh.texture,
+        mesh.corner_uvs,
+        quantize_bits=quantize_bits,
+        grid_box=grid_box,
+        name=mesh.name,
+    )
 
 
 def _read_source(source: MeshSource) -> tuple[bytes, str | None]:
@@ -242,14 +276,6 @@ def _checked_attributes(
                 f"{label}: vertex attribute {key!r} must have shape ({n_vertices}, "
                 f"{' or '.join(map(str, widths))}), got {values.shape}"
             )
-        if values.dtype.kind not in "fiu":
-            raise InvalidMeshError(f"{label}: vertex attribute {key!r} must hold numbers")
-        values = np.ascontiguousarray(values, dtype=np.float32)
-        if not np.isfinite(values).all():
-            row = int(np.flatnonzero(~np.isfinite(values).all(axis=1))[0])
-            raise InvalidMeshError(
-                f"{label}: vertex attribute {key!r} of vertex {row} is {values[row].tolist()}; "
-                "NaN and infinite values are refused: repair or drop the attribute"
-            )
-        checked[key] = values
+        what = f"{label}: vertex attribute {key!r}"
+        checked[key] = finite_float32(values, what, "vertex", "the attribute")
     return checked

@@ -531,7 +531,16 @@ def _small_files():
         "glb": encode_mesh(vertices, faces, "glb", attributes, PNG),
         "msgpack": encode_mesh(vertices, faces, "msgpack", attributes, PNG),
         "msgpack_u16": encode_mesh(vertices, faces, "msgpack", quantize_bits=16),
+        # Corner UVs with seams: OBJ vt per corner, PLY texcoord lists, GLB split
+        # vertices and their record, msgpack corner_uvs.
+        **{
+            f"{fmt}_seams": encode_mesh(vertices, faces, fmt, corner_uvs=_SEAMS)
+            for fmt in ("obj", "ply", "glb", "msgpack")
+        },
     }
+
+
+_SEAMS = (np.arange(8 * 3 * 2).reshape(8, 3, 2) % 7 / 7).astype(np.float32)
 
 
 def _load_or_refuse(blob, fmt):

@@ -19,13 +19,28 @@ from __future__ import annotations
 import struct
 import zlib
 from collections.abc import Iterable, Iterator
+from typing import NamedTuple
 
 import msgpack
 import numpy as np
 
-from ._kernels.refine import delta_code_positions, undo_delta_positions
+from ._kernels.stream_coding import (
+    BAD_BACK,
+    BAD_CODE,
+    BAD_MASK,
+    BAD_THIRD,
+    BAD_VERTEX,
+    LONG_DATA,
+    NO_CORNER,
+    SHORT_DATA,
+    code_positions,
+    decode_connectivity,
+    encode_connectivity,
+    link_corners,
+    uncode_positions,
+)
 from .errors import CorruptFileError, InvalidOptionsError
-from .progressive import ProgressiveMesh, VertexSplits, apply_splits, check_splits
+from .progressive import ProgressiveMesh, VertexSplits
 from .quantise import Grid
 
 __all__ = [
@@ -39,14 +54,11 @@ __all__ = [
 ]
 
 MEDIA_TYPE = "application/x-qem-splits"
-STREAM_VERSION = 1
+STREAM_VERSION = 2
 # Frames grow from FIRST_FRAME_SPLITS to SPLITS_PER_FRAME splits (doubling), so that a
 # viewer refines early in the stream and big ranges still deflate well.
 FIRST_FRAME_SPLITS = 512
 SPLITS_PER_FRAME = 8192
-# Face codes: 0-2 the face is (s, t, x) rotated by the code; 3-5 (t, s, x) rotated;
-# 6 the three corners are given explicitly (non-manifold or pair-contraction splits).
-_EXPLICIT_FACE = 6
 _FRAME_LIMIT = 64 << 20
 # Deflate level 6, not 9: on dragon's whole stream 9 is 0.4 % smaller but 3.9x slower
 # (3.8 s against 1.0 s), and encoding is what a viewer waits for.
@@ -89,33 +101,21 @@ def _unzigzag(values: np.ndarray) -> np.ndarray:
     return ((v >> np.uint64(1)).astype(np.int64)) ^ -((v & np.uint64(1)).astype(np.int64))
 
 
-def _face_codes(splits: VertexSplits) -> tuple[np.ndarray, np.ndarray]:
-    """Code each new face relative to its split's s and t; returns (codes, corners)."""
-    born = np.repeat(np.arange(splits.split_vertex.shape[0]), splits.new_face_counts)
-    s = splits.split_vertex[born][:, None]
-    t = (splits.n_from + born)[:, None]
-    faces = splits.new_faces
-    codes = np.full(faces.shape[0], _EXPLICIT_FACE, np.uint8)
-    third = np.zeros(faces.shape[0], np.int64)
-    for rotation in range(3):
-        c0 = faces[:, rotation][:, None]
-        c1 = faces[:, (rotation + 1) % 3][:, None]
-        c2 = faces[:, (rotation + 2) % 3]
-        for base, first, second in ((0, s, t), (3, t, s)):
-            hit = ((c0 == first) & (c1 == second))[:, 0] & (codes == _EXPLICIT_FACE)
-            codes[hit] = base + rotation
-            third[hit] = (t[:, 0] - c2)[hit]
-    explicit = codes == _EXPLICIT_FACE
-    corners = np.concatenate([third[~explicit], (t - faces)[explicit].reshape(-1)])
-    # The third corners of coded faces in face order, then the explicit triples.
-    return codes, corners
-
-
-def _encode_frame(splits: VertexSplits, deltas: np.ndarray, grid: Grid) -> bytes:
+def _encode_frame(splits: VertexSplits, state: _State, quantised: np.ndarray, grid: Grid) -> bytes:
     k = splits.split_vertex.shape[0]
-    codes, corners = _face_codes(splits)
-    faces_before = splits.faces_from + np.concatenate([[0], np.cumsum(splits.new_face_counts)[:-1]])
-    relabel_at = np.repeat(np.arange(k), np.diff(splits.relabel_offsets))
+    codes, thirds, backs, masks, status = encode_connectivity(
+        state.faces, splits.faces_from, state.head, state.nxt, splits.n_from,
+        splits.split_vertex, splits.new_faces, splits.new_face_counts,
+        splits.relabel_offsets, splits.relabel_faces,
+    )  # fmt: skip
+    if status:
+        raise ValueError("inconsistent splits: a relabelled face has no corner s")
+    mid = np.zeros((k, 3), np.int64)
+    span = np.zeros((k, 3), np.int64)
+    code_positions(
+        quantised, splits.split_vertex, grid.quantise(splits.split_positions), splits.n_from,
+        mid, span,
+    )  # fmt: skip
     body = {
         "format": "qem-splits",
         "version": STREAM_VERSION,
@@ -125,18 +125,34 @@ def _encode_frame(splits: VertexSplits, deltas: np.ndarray, grid: Grid) -> bytes
         "bits": grid.bits,
         "grid": [*map(float, grid.origin), *map(float, grid.step)],
         "n_new_faces": int(splits.new_faces.shape[0]),
-        "n_relabels": int(splits.relabel_faces.shape[0]),
-        "n_explicit": int(np.count_nonzero(codes == _EXPLICIT_FACE)),
+        "n_backs": int(backs.shape[0]),
         "split_back": _planes(splits.n_from + np.arange(k) - splits.split_vertex, "<u4"),
-        "position_deltas": _planes(_zigzag(deltas.reshape(-1)), "<u4"),
         "new_face_counts": _planes(splits.new_face_counts, "<u2"),
         "face_codes": codes.tobytes(),
-        "face_corners_back": _planes(corners, "<u4"),
-        "relabel_counts": _planes(np.diff(splits.relabel_offsets), "<u2"),
-        "relabel_faces_back": _planes(faces_before[relabel_at] - 1 - splits.relabel_faces, "<u4"),
+        "third_corners": thirds.tobytes(),
+        "corners_back": _planes(backs, "<u4"),
+        "relabel_masks": masks.tobytes(),
+        "position_mid": _planes(_zigzag(mid.T.reshape(-1)), "<u4"),
+        "position_span": _planes(_zigzag(span.T.reshape(-1)), "<u4"),
     }
     payload = zlib.compress(msgpack.packb(body), _DEFLATE_LEVEL)
     return struct.pack("<I", len(payload)) + payload
+
+
+class _State(NamedTuple):
+    """The connectivity both ends keep (``_kernels/stream_coding.py``)."""
+
+    faces: np.ndarray  # (capacity, 3) int32, the first n rows are the level's faces
+    head: np.ndarray  # (vertex capacity,) int64
+    nxt: np.ndarray  # (3 * capacity,) int64
+
+
+def _state(faces: np.ndarray, n_vertices: int, face_capacity: int) -> _State | None:
+    """The state of a level with room to grow; None if a face names no vertex."""
+    held = np.zeros((face_capacity, 3), np.int32)
+    held[: faces.shape[0]] = faces
+    state = _State(held, np.empty(n_vertices, np.int64), np.empty(3 * face_capacity, np.int64))
+    return state if link_corners(held, faces.shape[0], state.head, state.nxt) else None
 
 
 def encode_split_frames(
@@ -151,19 +167,16 @@ def encode_split_frames(
     n_from, n_to = pm.clamp(n_from), pm.clamp(n_to)
     if n_from > n_to:
         raise InvalidOptionsError(f"from={n_from} must not exceed to={n_to}")
+    vertices, faces = pm.lod(n_from)
     quantised = np.zeros((n_to, 3), np.int64)
-    quantised[:n_from] = grid.quantise(pm.lod(n_from)[0])
+    quantised[:n_from] = grid.quantise(vertices)
+    state = _state(faces, n_to, pm.n_faces(n_to))
     frame_splits = min(FIRST_FRAME_SPLITS, splits_per_frame)
     start = n_from
     while start < n_to:
         stop = min(start + frame_splits, n_to)
         frame_splits = min(2 * frame_splits, splits_per_frame)
-        splits = pm.splits(start, stop)
-        deltas = np.zeros((stop - start, 2, 3), np.int64)
-        delta_code_positions(
-            quantised, splits.split_vertex, grid.quantise(splits.split_positions), start, deltas
-        )
-        yield _encode_frame(splits, deltas, grid)
+        yield _encode_frame(pm.splits(start, stop), state, quantised, grid)
         start = stop
 
 
@@ -223,9 +236,18 @@ class SplitStreamDecoder:
             body = msgpack.unpackb(_inflate(payload))
             if body.get("format") != "qem-splits":
                 raise CorruptFileError("not a qem-splits frame")
-            if body["version"] > STREAM_VERSION:
-                raise CorruptFileError(f"split frame version {body['version']} is too new")
+            version = body["version"]
+            if not isinstance(version, int) or version > STREAM_VERSION:
+                raise CorruptFileError(f"split frame version {version!r} is too new")
+            if version < STREAM_VERSION:
+                raise CorruptFileError(
+                    f"split frame version {version} is no longer read (this reads {STREAM_VERSION})"
+                )
             n_from, n_to, faces_from = body["n_from"], body["n_to"], body["faces_from"]
+            n_new, n_backs = body["n_new_faces"], body["n_backs"]
+            for value in (n_from, n_to, faces_from, n_new, n_backs):
+                if not isinstance(value, int) or value < 0:
+                    raise CorruptFileError(f"split frame: a count is {value!r}")
             grid_values = np.asarray(body["grid"], np.float64)
             # Checked here: a short or non-finite grid would only fail later, when the
             # caller reads `vertices`, with an unrelated error.
@@ -233,86 +255,58 @@ class SplitStreamDecoder:
                 raise CorruptFileError("split frame: 'grid' must be 6 finite numbers")
             grid = Grid(grid_values[:3], grid_values[3:], int(body["bits"]))
             k = n_to - n_from
-            n_new, n_relabels = body["n_new_faces"], body["n_relabels"]
-            n_explicit = body["n_explicit"]
+            if n_from != self.n_vertices or faces_from != self.faces.shape[0] or k < 0:
+                raise CorruptFileError(
+                    f"frame refines {n_from} vertices / {faces_from} faces, the mesh has "
+                    f"{self.n_vertices} / {self.faces.shape[0]}"
+                )
             split_back = _from_planes(body["split_back"], "<u4", k).astype(np.int64)
-            deltas = _unzigzag(_from_planes(body["position_deltas"], "<u4", 6 * k))
-            counts = _from_planes(body["new_face_counts"], "<u2", k).astype(np.int32)
-            codes = np.frombuffer(body["face_codes"], np.uint8)
-            corners = _from_planes(
-                body["face_corners_back"], "<u4", n_new - n_explicit + 3 * n_explicit
-            ).astype(np.int64)
-            relabel_counts = _from_planes(body["relabel_counts"], "<u2", k).astype(np.int64)
-            relabel_back = _from_planes(body["relabel_faces_back"], "<u4", n_relabels)
+            counts = _from_planes(body["new_face_counts"], "<u2", k).astype(np.int64)
+            if int(counts.sum()) != n_new:
+                raise CorruptFileError("split frame: face counts do not add up to n_new_faces")
+            codes = np.frombuffer(_bin(body["face_codes"], n_new, "face_codes"), np.uint8)
+            thirds = np.frombuffer(_bin(body["third_corners"], None, "third_corners"), np.uint8)
+            backs = _from_planes(body["corners_back"], "<u4", n_backs).astype(np.int64)
+            masks = np.frombuffer(_bin(body["relabel_masks"], None, "relabel_masks"), np.uint8)
+            mid = _unzigzag(_from_planes(body["position_mid"], "<u4", 3 * k))
+            span = _unzigzag(_from_planes(body["position_span"], "<u4", 3 * k))
         except CorruptFileError:
             raise
         except Exception as exc:  # zlib, msgpack, KeyError, TypeError...
             raise CorruptFileError(f"unreadable split frame: {exc}") from None
-        if n_from != self.n_vertices or faces_from != self.faces.shape[0] or k < 0:
-            raise CorruptFileError(
-                f"frame refines {n_from} vertices / {faces_from} faces, the mesh has "
-                f"{self.n_vertices} / {self.faces.shape[0]}"
-            )
-        if codes.shape[0] != n_new or np.any(codes > _EXPLICIT_FACE):
-            raise CorruptFileError("split frame: bad face codes")
-        split_vertex = (n_from + np.arange(k) - split_back).astype(np.int32)
-        new_faces = self._faces_from_codes(split_vertex, counts, codes, corners, n_from)
-        relabel_offsets = np.concatenate([[0], np.cumsum(relabel_counts)])
-        relabel_at = np.repeat(np.arange(k), relabel_counts)
-        faces_before = faces_from + np.concatenate([[0], np.cumsum(counts)[:-1]])
-        relabel_faces = (
-            (faces_before[relabel_at] - 1 - relabel_back.astype(np.int64)) if k else relabel_back
-        )
-        check_splits(
-            n_from,
-            faces_from,
-            split_vertex,
-            new_faces,
-            counts,
-            relabel_offsets,
-            np.asarray(relabel_faces, np.int64),
-        )
+        state = _state(self.faces, n_to, faces_from + n_new)
+        if state is None:
+            raise CorruptFileError("the mesh being refined has a face naming no vertex")
+        status, split_vertex, _, _ = decode_connectivity(
+            state.faces, faces_from, state.head, state.nxt, n_from, split_back, counts,
+            codes, thirds, backs, masks,
+        )  # fmt: skip
+        if status:
+            raise CorruptFileError(f"split frame: {_STATUS[status]}")
         quantised = np.zeros((n_to, 3), np.int64)
         quantised[:n_from] = self.quantised
-        split_quantised = np.zeros((k, 2, 3), np.int64)
-        undo_delta_positions(
-            quantised, split_vertex, deltas.reshape(k, 2, 3), n_from, split_quantised
-        )
-        splits = VertexSplits(
+        uncode_positions(
+            quantised, split_vertex, mid.reshape(3, k).T.copy(), span.reshape(3, k).T.copy(),
             n_from,
-            n_to,
-            faces_from,
-            split_vertex,
-            split_quantised.astype(np.float64),
-            new_faces,
-            counts,
-            relabel_offsets.astype(np.int64),
-            np.asarray(relabel_faces, np.int32),
-        )
-        # Positions are already applied on the grid; apply_splits rewrites the faces.
-        _, self.faces = apply_splits(np.zeros((n_from, 3)), self.faces, splits)
+        )  # fmt: skip
+        self.faces = state.faces
         self.quantised = quantised
         self.grid = grid
 
-    @staticmethod
-    def _faces_from_codes(split_vertex, counts, codes, corners, n_from):
-        born = np.repeat(np.arange(split_vertex.shape[0]), counts)
-        if born.shape[0] != codes.shape[0]:
-            raise CorruptFileError("split frame: face counts do not match the face codes")
-        s = split_vertex[born].astype(np.int64)
-        t = (n_from + born).astype(np.int64)
-        coded = codes != _EXPLICIT_FACE
-        faces = np.zeros((codes.shape[0], 3), np.int64)
-        n_coded = int(coded.sum())
-        third = t[coded] - corners[:n_coded]
-        code = codes[coded].astype(np.int64)
-        swapped = code >= 3
-        rotation = code % 3
-        first = np.where(swapped, t[coded], s[coded])
-        second = np.where(swapped, s[coded], t[coded])
-        rows = np.flatnonzero(coded)
-        faces[rows, rotation] = first
-        faces[rows, (rotation + 1) % 3] = second
-        faces[rows, (rotation + 2) % 3] = third
-        faces[~coded] = t[~coded][:, None] - corners[n_coded:].reshape(-1, 3)
-        return faces.astype(np.int32)
+
+def _bin(value, length: int | None, name: str) -> bytes:
+    if not isinstance(value, bytes) or (length is not None and len(value) != length):
+        raise CorruptFileError(f"split frame: {name!r} is not {length} bytes")
+    return value
+
+
+_STATUS = {
+    BAD_VERTEX: "a split names a vertex that does not exist yet",
+    BAD_CODE: "a face code is not 0..6",
+    BAD_THIRD: "a third corner is not a neighbour of the split vertex",
+    BAD_BACK: "a new face names a vertex that does not exist yet",
+    SHORT_DATA: "a field ends before the splits do",
+    LONG_DATA: "a field holds more than the splits use",
+    BAD_MASK: "a relabel mask sets a bit past the split vertex's corners",
+    NO_CORNER: "a relabelled face has no corner s",
+}

@@ -40,39 +40,3 @@ def _apply_split_run(vertices, faces, split_vertex, split_positions, relabel_off
 
 
 apply_split_run = numba.njit(cache=True)(_apply_split_run)
-
-
-def _delta_code_positions(quantised, split_vertex, split_quantised, first_new, deltas):
-    """Delta-code split positions against the position of s just before each split.
-
-    quantised : (>= first_new + K, 3) int64 positions of the mesh being refined; updated
-        in place as the splits go (rows of new vertices are written).
-    split_quantised : (K, 2, 3) int64 new position of s, position of t.
-    deltas : (K, 2, 3) int64 out: both positions minus the old position of s.
-    """
-    for k in range(split_vertex.shape[0]):
-        s = split_vertex[k]
-        for d in range(3):
-            old = quantised[s, d]
-            deltas[k, 0, d] = split_quantised[k, 0, d] - old
-            deltas[k, 1, d] = split_quantised[k, 1, d] - old
-            quantised[s, d] = split_quantised[k, 0, d]
-            quantised[first_new + k, d] = split_quantised[k, 1, d]
-
-
-delta_code_positions = numba.njit(cache=True)(_delta_code_positions)
-
-
-def _undo_delta_positions(quantised, split_vertex, deltas, first_new, split_quantised):
-    """Inverse of ``delta_code_positions``: fills split_quantised, updates quantised."""
-    for k in range(split_vertex.shape[0]):
-        s = split_vertex[k]
-        for d in range(3):
-            old = quantised[s, d]
-            split_quantised[k, 0, d] = old + deltas[k, 0, d]
-            split_quantised[k, 1, d] = old + deltas[k, 1, d]
-            quantised[s, d] = split_quantised[k, 0, d]
-            quantised[first_new + k, d] = split_quantised[k, 1, d]
-
-
-undo_delta_positions = numba.njit(cache=True)(_undo_delta_positions)

@@ -265,8 +265,9 @@ def _planes_u4(values):
 
 @pytest.mark.parametrize("change", [
     _with(format="qem-mesh-msgpack"),
-    _with(version=2),
-    _with(version="1"),
+    _with(version=3),
+    _with(version=1),  # version 1 frames are no longer read
+    _with(version="2"),
     _without("split_back"),
     _without("grid"),
     _with(n_to=10**9),
@@ -280,16 +281,34 @@ def _planes_u4(values):
     _with(grid=[0.0, 0.0, 0.0, 1.0, float("nan"), 1.0]),
     _with(bits="sixteen"),
     _with(n_new_faces=10**6),
-    _with(n_relabels=-1),
-    _with(n_explicit=10**6),
+    _with(n_backs=-1),
+    _with(n_backs=10**6),
     _field_bytes("split_back", lambda b: b[:-1]),
     _field_bytes("face_codes", lambda b: b"\x07" * len(b)),
     _field_bytes("new_face_counts", lambda b: b"\xff" * len(b)),
     # A split of a vertex that does not exist yet (n_from + k - back < 0).
     _field_bytes("split_back", lambda b: b"\xff" * len(b)),
-    # New faces whose third corner lies beyond the vertices that exist.
-    _field_bytes("face_corners_back", lambda b: _planes_u4(np.full(len(b) // 4, 2**31))),
-    _field_bytes("relabel_faces_back", lambda b: b"\xff" * len(b)),
+    # A third corner escaped to a back-distance beyond the vertices that exist, and one
+    # escaped with no back-distance given.
+    lambda body: {
+        **body,
+        "third_corners": b"\xff" + body["third_corners"][1:],
+        "n_backs": 1,
+        "corners_back": _planes_u4([2**31]),
+    },
+    lambda body: {**body, "third_corners": b"\xff" + body["third_corners"][1:]},
+    # A back-distance that no face uses.
+    lambda body: {**body, "n_backs": 1, "corners_back": _planes_u4([0])},
+    # A third corner past the split vertex's neighbours, and one that is missing.
+    _field_bytes("third_corners", lambda b: b"\xfe" * len(b)),
+    _field_bytes("third_corners", lambda b: b[:-1]),
+    _field_bytes("third_corners", lambda b: b + b"\x00"),
+    # Relabel masks: bits past the corners of s, one byte too few or too many.
+    _field_bytes("relabel_masks", lambda b: b"\xff" * len(b)),
+    _field_bytes("relabel_masks", lambda b: b[:-1]),
+    _field_bytes("relabel_masks", lambda b: b + b"\x00"),
+    _field_bytes("position_mid", lambda b: b[:-1]),
+    _without("position_span"),
     lambda body: [body],
     lambda body: 42,
 ])  # fmt: skip

@@ -5,8 +5,10 @@
 //   base mesh   one msgpack map "qem-mesh-msgpack" v1, positions "u16" on the grid whose
 //               box is `bbox` (the very integers the split stream's deltas refer to);
 //   split stream  frames of uint32 LE length L + L bytes of zlib (RFC 1950) data holding
-//               a msgpack map "qem-splits" v1; integer fields are little-endian byte
-//               planes (all low bytes, then the next...), positions zigzag deltas.
+//               a msgpack map "qem-splits" v2; integer fields are little-endian byte
+//               planes (all low bytes, then the next...), positions zigzag residuals,
+//               connectivity relative to the split vertex's neighbourhood, which the
+//               decoder below keeps at the received level (docs/formats.md section 2).
 //
 // Split k (level L = nBase + k -> L + 1), as qem_core/_kernels/refine.py applies it:
 //
@@ -21,9 +23,11 @@
 
 import { decode } from "@msgpack/msgpack";
 
-export const STREAM_VERSION = 1;
+export const STREAM_VERSION = 2;
 export const MESH_VERSION = 1;
 const EXPLICIT_FACE = 6; // face codes 0-2: (s, t, x) rotated; 3-5: (t, s, x); 6: explicit
+const ESCAPE = 255; // a third corner given as a back-distance, not as a neighbour index
+const PREDICT_LIMIT = 64; // as qem_core/_kernels/stream_coding.py
 const FRAME_LIMIT = 64 << 20; // as qem_core.stream: a larger length means a broken stream
 const INFLATED_LIMIT = 256 << 20; // as qem_core.stream: a frame may not inflate further
 
@@ -202,6 +206,15 @@ export async function inflate(payload) {
   return out;
 }
 
+/** msgpack bin bytes of an exact length (any length when `length` is null). */
+function binField(body, key, length) {
+  const value = body[key];
+  if (!(value instanceof Uint8Array) || (length !== null && value.length !== length)) {
+    fail(`split frame: '${key}' holds ${value?.length} bytes, expected ${length}`);
+  }
+  return value;
+}
+
 /** One inflated frame's msgpack map, fields checked and planes decoded (no mesh state). */
 export function decodeFrame(bytes) {
   let body;
@@ -212,28 +225,17 @@ export function decodeFrame(bytes) {
   }
   if (body?.format !== "qem-splits") fail("not a qem-splits frame");
   if (!(body.version <= STREAM_VERSION)) fail(`split frame version ${body.version} is too new`);
-  const counts = [
-    "n_from",
-    "n_to",
-    "faces_from",
-    "bits",
-    "n_new_faces",
-    "n_relabels",
-    "n_explicit",
-  ];
-  for (const key of counts) {
+  if (body.version !== STREAM_VERSION) {
+    fail(`split frame version ${body.version} is no longer read (this reads ${STREAM_VERSION})`);
+  }
+  for (const key of ["n_from", "n_to", "faces_from", "bits", "n_new_faces", "n_backs"]) {
     if (!Number.isInteger(body[key]) || body[key] < 0)
       fail(`split frame: '${key}' is ${body[key]}`);
   }
   const k = body.n_to - body.n_from;
   const nNew = body.n_new_faces;
-  const nExplicit = body.n_explicit;
-  if (k < 0 || nExplicit > nNew) fail("split frame: inconsistent counts");
+  if (k < 0) fail("split frame: inconsistent counts");
   if (!Array.isArray(body.grid) || body.grid.length !== 6) fail("split frame: bad 'grid'");
-  const faceCodes = body.face_codes;
-  if (!(faceCodes instanceof Uint8Array) || faceCodes.length !== nNew) {
-    fail("split frame: face codes do not match n_new_faces");
-  }
   return {
     nFrom: body.n_from,
     nTo: body.n_to,
@@ -241,14 +243,123 @@ export function decodeFrame(bytes) {
     bits: body.bits,
     grid: body.grid,
     splitBack: fromPlanes(body.split_back, 4, k, "split_back"),
-    deltas: unzigzag(fromPlanes(body.position_deltas, 4, 6 * k, "position_deltas")),
     newFaceCounts: fromPlanes(body.new_face_counts, 2, k, "new_face_counts"),
-    faceCodes,
-    cornersBack: fromPlanes(body.face_corners_back, 4, nNew + 2 * nExplicit, "face_corners_back"),
-    nExplicit,
-    relabelCounts: fromPlanes(body.relabel_counts, 2, k, "relabel_counts"),
-    relabelBack: fromPlanes(body.relabel_faces_back, 4, body.n_relabels, "relabel_faces_back"),
+    faceCodes: binField(body, "face_codes", nNew),
+    thirdCorners: binField(body, "third_corners", null),
+    cornersBack: fromPlanes(body.corners_back, 4, body.n_backs, "corners_back"),
+    relabelMasks: binField(body, "relabel_masks", null),
+    mid: unzigzag(fromPlanes(body.position_mid, 4, 3 * k, "position_mid")),
+    span: unzigzag(fromPlanes(body.position_span, 4, 3 * k, "position_span")),
   };
+}
+
+/**
+ * The connectivity of the received level, as qem_core/_kernels/stream_coding.py keeps
+ * it: the faces, and per vertex a list of the corners (3 * face + j) naming it.
+ */
+class SplitState {
+  constructor(base, nFull, fFull) {
+    this.faces = new Int32Array(3 * fFull);
+    this.faces.set(base.indices);
+    this.head = new Int32Array(nFull).fill(-1);
+    this.next = new Int32Array(3 * fFull);
+    this.q = new Int32Array(3 * nFull); // grid positions of the received level
+    this.q.set(base.positions);
+    for (let c = 0; c < 3 * base.nFaces; c++) {
+      const v = this.faces[c];
+      if (v >= base.nVertices) fail("base mesh: a face names a vertex that does not exist");
+      this.link(v, c);
+    }
+    this.cs = new Int32Array(16); // corners of s, sorted
+    this.nb = new Int32Array(32); // its distinct neighbours, sorted
+    this.mark = new Uint8Array(16);
+  }
+
+  link(v, c) {
+    this.next[c] = this.head[v];
+    this.head[v] = c;
+  }
+
+  unlink(v, c) {
+    let prev = -1;
+    let at = this.head[v];
+    while (at !== -1 && at !== c) {
+      prev = at;
+      at = this.next[at];
+    }
+    if (at === -1) return;
+    if (prev === -1) this.head[v] = this.next[c];
+    else this.next[prev] = this.next[c];
+  }
+
+  /** Sorted corners of s into cs, sorted distinct other vertices into nb; [nc, nn]. */
+  gather(s) {
+    let degree = 0;
+    for (let c = this.head[s]; c !== -1; c = this.next[c]) degree++;
+    if (degree > this.cs.length) {
+      this.cs = new Int32Array(2 * degree);
+      this.nb = new Int32Array(4 * degree);
+      this.mark = new Uint8Array(2 * degree);
+    }
+    const { cs, nb, faces } = this;
+    let nc = 0;
+    for (let c = this.head[s]; c !== -1; c = this.next[c]) cs[nc++] = c;
+    cs.subarray(0, nc).sort();
+    let m = 0;
+    for (let q = 0; q < nc; q++) {
+      const f = 3 * Math.floor(cs[q] / 3);
+      for (let j = 0; j < 3; j++) if (faces[f + j] !== s) nb[m++] = faces[f + j];
+    }
+    nb.subarray(0, m).sort();
+    let nn = 0;
+    for (let q = 0; q < m; q++) if (nn === 0 || nb[q] !== nb[nn - 1]) nb[nn++] = nb[q];
+    return [nc, nn];
+  }
+
+  /** The predicted relabel mask into mark[0..nc): the fan of s's faces from wing xl to
+   * wing xr (stream_coding._predict). */
+  predict(nc, xl, xr) {
+    const { cs, faces, mark } = this;
+    mark.fill(0, 0, nc);
+    if (nc > PREDICT_LIMIT || (xl < 0 && xr < 0)) return;
+    const forward = xl >= 0;
+    let y = forward ? xl : xr;
+    for (let step = 0; step < nc; step++) {
+      let found = -1;
+      for (let q = 0; q < nc; q++) {
+        if (mark[q]) continue;
+        const c = cs[q];
+        const f = c - (c % 3);
+        const j = c % 3;
+        const side = forward ? faces[f + ((j + 2) % 3)] : faces[f + ((j + 1) % 3)];
+        if (side === y) {
+          found = q;
+          break;
+        }
+      }
+      if (found < 0) return;
+      mark[found] = 1;
+      const c = cs[found];
+      const f = c - (c % 3);
+      const j = c % 3;
+      y = forward ? faces[f + ((j + 1) % 3)] : faces[f + ((j + 2) % 3)];
+      if (forward && y === xr) return;
+    }
+  }
+
+  /** The first corner of face f equal to s becomes t; false if there is none. */
+  relabel(f, s, t) {
+    for (let j = 0; j < 3; j++) {
+      const c = 3 * f + j;
+      if (this.faces[c] === s) {
+        this.faces[c] = t;
+        this.unlink(s, c);
+        this.link(t, c);
+        return true;
+      }
+    }
+    return false;
+  }
 }
 
 /**
@@ -281,6 +392,8 @@ export class ProgressiveLevels {
     this.relabelOffsets = new Uint32Array(nSplits + 1);
     this.relabelFaces = new Uint32Array(Math.max(16, 2 * nSplits)); // grows if needed
     this.received = this.nBase; // vertex count up to which splits are held
+    this.state = new SplitState(base, nFull, fFull); // the received level, for decoding
+    this.broken = null; // why a frame was refused half-way
     this.level = this.nBase; // vertex count the buffers hold now
   }
 
@@ -293,8 +406,10 @@ export class ProgressiveLevels {
   }
 
   /** Store a decoded frame's splits (they must continue the received ones); the new faces
-   * go into the index buffer as born. Does not move the level. */
+   * go into the index buffer as born. Does not move the level. A frame refused half-way
+   * leaves the decoder state unusable: later frames are refused too. */
   addFrame(frame) {
+    if (this.broken) fail(`an earlier frame was refused: ${this.broken}`);
     const { nFrom, nTo, facesFrom } = frame;
     if (nFrom !== this.received || facesFrom !== this.facesAt(this.received)) {
       fail(
@@ -305,73 +420,122 @@ export class ProgressiveLevels {
     if (nTo > this.nFull) fail(`frame goes to ${nTo} vertices, past the full ${this.nFull}`);
     this.checkGrid(frame);
     const k = nTo - nFrom;
-    const first = nFrom - this.nBase;
     let faces = facesFrom;
     for (let i = 0; i < k; i++) faces += frame.newFaceCounts[i];
     if (faces - facesFrom !== frame.faceCodes.length) {
       fail("split frame: face counts do not match the face codes");
     }
     if (faces > this.fFull) fail(`frame brings ${faces} faces, past the full ${this.fFull}`);
-    for (let i = 0; i < k; i++) {
-      const back = frame.splitBack[i];
-      if (back < 1 || back > nFrom + i)
-        fail(`split ${nFrom + i}: names a vertex that does not exist yet`);
+    try {
+      this.decodeSplits(frame);
+    } catch (error) {
+      this.broken = error.message;
+      throw error;
     }
-    this.writeNewFaces(frame);
-    // Splits, positions and relabels (relabel back is counted from the faces before).
-    const relabelStart = this.relabelOffsets[first];
-    this.reserveRelabels(relabelStart + frame.relabelBack.length);
-    let r = 0;
-    for (let i = 0; i < k; i++) {
-      const t = nFrom + i;
-      this.splitVertex[first + i] = t - frame.splitBack[i];
-      this.deltas.set(frame.deltas.subarray(6 * i, 6 * i + 6), 6 * (first + i));
-      const before = this.levelFaces[first + i];
-      this.levelFaces[first + i + 1] = before + frame.newFaceCounts[i];
-      for (let j = 0; j < frame.relabelCounts[i]; j++, r++) {
-        const backFace = frame.relabelBack[r];
-        if (r >= frame.relabelBack.length || backFace >= before) {
-          fail(`split ${t}: relabels a face that does not exist yet`);
-        }
-        this.relabelFaces[relabelStart + r] = before - 1 - backFace;
-      }
-      this.relabelOffsets[first + i + 1] = relabelStart + r;
-    }
-    if (r !== frame.relabelBack.length) fail("split frame: relabel counts do not add up");
     this.received = nTo;
   }
 
-  writeNewFaces(frame) {
-    const { nFrom, faceCodes, cornersBack, nExplicit } = frame;
+  /** The frame's splits against the received level (stream_coding.decode_connectivity
+   * and uncode_positions), stored as split vertex, deltas and relabelled faces. */
+  decodeSplits(frame) {
+    const { nFrom, faceCodes, thirdCorners, cornersBack, relabelMasks, mid, span } = frame;
+    const k = frame.nTo - nFrom;
+    const first = nFrom - this.nBase;
+    const state = this.state;
+    const sf = state.faces;
+    const q = state.q;
     const out = this.indices;
-    let f = 3 * frame.facesFrom;
-    let coded = 0;
-    let explicit = faceCodes.length - nExplicit;
-    let face = 0;
-    for (let i = 0; i < frame.newFaceCounts.length; i++) {
+    let relabel = this.relabelOffsets[first];
+    let atCode = 0;
+    let atThird = 0;
+    let atBack = 0;
+    let atMask = 0;
+    let face = frame.facesFrom;
+    for (let i = 0; i < k; i++) {
       const t = nFrom + i;
-      const s = t - frame.splitBack[i];
-      for (let j = 0; j < frame.newFaceCounts[i]; j++, face++, f += 3) {
-        const code = faceCodes[face];
+      const back = frame.splitBack[i];
+      if (back < 1 || back > t) fail(`split ${t}: names a vertex that does not exist yet`);
+      const s = t - back;
+      const [nc, nn] = state.gather(s);
+      const count = frame.newFaceCounts[i];
+      let xl = -1;
+      let xr = -1;
+      const firstNew = face;
+      for (let j = 0; j < count; j++, face++) {
+        const code = faceCodes[atCode++];
+        const f = 3 * face;
         if (code === EXPLICIT_FACE) {
+          if (atBack + 3 > cornersBack.length) fail("split frame: a field ends before the splits do");
           for (let c = 0; c < 3; c++) {
-            const back = cornersBack[explicit++];
-            if (back > t) fail(`split ${t}: a new face uses a vertex that does not exist`);
-            out[f + c] = t - back;
+            const b = cornersBack[atBack++];
+            if (b > t) fail(`split ${t}: a new face uses a vertex that does not exist`);
+            sf[f + c] = t - b;
           }
           continue;
         }
         if (code > EXPLICIT_FACE) fail(`split frame: bad face code ${code}`);
-        const back = cornersBack[coded++];
-        if (back > t) fail(`split ${t}: a new face uses a vertex that does not exist`);
+        if (atThird >= thirdCorners.length) fail("split frame: a field ends before the splits do");
+        const index = thirdCorners[atThird++];
+        let x;
+        if (index === ESCAPE) {
+          if (atBack >= cornersBack.length) fail("split frame: a field ends before the splits do");
+          const b = cornersBack[atBack++];
+          if (b > t) fail(`split ${t}: a new face uses a vertex that does not exist`);
+          x = t - b;
+        } else if (index < nn) {
+          x = state.nb[index];
+        } else {
+          fail(`split ${t}: a third corner is not a neighbour of the split vertex`);
+        }
         const rotation = code % 3;
         const swapped = code >= 3;
-        out[f + rotation] = swapped ? t : s;
-        out[f + ((rotation + 1) % 3)] = swapped ? s : t;
-        out[f + ((rotation + 2) % 3)] = t - back;
+        sf[f + rotation] = swapped ? t : s;
+        sf[f + ((rotation + 1) % 3)] = swapped ? s : t;
+        sf[f + ((rotation + 2) % 3)] = x;
+        if (!swapped && xl < 0) xl = x;
+        if (swapped && xr < 0) xr = x;
       }
+      out.set(sf.subarray(3 * firstNew, 3 * face), 3 * firstNew); // as born
+      state.predict(nc, xl, xr);
+      const nBytes = (nc + 7) >> 3;
+      if (atMask + nBytes > relabelMasks.length) fail("split frame: a field ends before the splits do");
+      const mark = state.mark;
+      for (let j = 0; j < nc; j++) mark[j] ^= (relabelMasks[atMask + (j >> 3)] >> (j & 7)) & 1;
+      if (nc & 7 && relabelMasks[atMask + nBytes - 1] >> (nc & 7)) {
+        fail("split frame: a relabel mask sets a bit past the split vertex's corners");
+      }
+      atMask += nBytes;
+      this.reserveRelabels(relabel + nc);
+      for (let j = 0; j < nc; j++) {
+        if (!mark[j]) continue;
+        const f = Math.floor(state.cs[j] / 3);
+        if (!state.relabel(f, s, t)) fail(`split ${t}: a relabelled face has no corner s`);
+        this.relabelFaces[relabel++] = f;
+      }
+      for (let c = 3 * firstNew; c < 3 * face; c++) state.link(sf[c], c);
+      // Positions: a + b = 2 (old + mid) + (span & 1), b - a = span (code_positions).
+      for (let axis = 0; axis < 3; axis++) {
+        const old = q[3 * s + axis];
+        const m = mid[axis * k + i] + old;
+        const e = span[axis * k + i];
+        const a = (2 * m + (e & 1) - e) / 2;
+        q[3 * s + axis] = a;
+        q[3 * t + axis] = a + e;
+        this.deltas[6 * (first + i) + axis] = a - old;
+        this.deltas[6 * (first + i) + 3 + axis] = a + e - old;
+      }
+      this.splitVertex[first + i] = s;
+      this.levelFaces[first + i + 1] = face;
+      this.relabelOffsets[first + i + 1] = relabel;
     }
-    if (coded !== faceCodes.length - nExplicit) fail("split frame: n_explicit is wrong");
+    if (
+      atCode !== faceCodes.length ||
+      atThird !== thirdCorners.length ||
+      atBack !== cornersBack.length ||
+      atMask !== relabelMasks.length
+    ) {
+      fail("split frame: a field holds more than the splits use");
+    }
   }
 
   checkGrid(frame) {

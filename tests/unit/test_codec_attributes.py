@@ -22,7 +22,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from qem_core import InvalidMeshError, MeshFormatError
-from qem_core.codecs import encode_mesh, load_mesh, write_mesh
+from qem_core.codecs import _corners, encode_mesh, load_mesh, write_mesh
 from qem_core.mesh import Mesh
 from tests.conftest import REPO
 from tests.tiny_meshes import OCTAHEDRON
@@ -419,3 +419,22 @@ def test_files_are_named_in_messages(tmp_path: Path):
     path.write_bytes(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 inf\nf 1/1 2/1 3/1\n")
     with pytest.raises(InvalidMeshError, match="broken.obj"):
         load_mesh(path)
+
+
+@pytest.mark.parametrize("multiplier", [None, 0])
+def test_weld_is_exact_even_when_hashes_collide(monkeypatch, multiplier):
+    """The GLB reader's weld: rows equal in every column merge, in first-seen order;
+    with a multiplier of 0 every hash is the last word alone, so different rows share
+    hashes and the exact fallback must answer the same."""
+    if multiplier is not None:
+        monkeypatch.setattr(_corners, "_HASH_MULTIPLIER", np.uint64(multiplier))
+    rng = np.random.default_rng(3)
+    positions = rng.integers(0, 4, (500, 3)).astype(float)
+    normals = np.zeros((500, 3), np.float32)
+    normals[:, 0] = positions[:, 2]  # the last word (normal z, padding) is 0 in every row
+    kept, index = _corners.weld([positions, normals])
+    unique, first = np.unique(positions, axis=0, return_index=True)
+    assert kept.tolist() == sorted(first.tolist())
+    assert np.array_equal(positions[kept][index], positions)
+    empty = _corners.weld([np.zeros((0, 3)), np.zeros((0, 3), np.float32)])
+    assert [a.size for a in empty] == [0, 0]

@@ -43,7 +43,7 @@ def finite_float32(values: np.ndarray, what: str, item: str, fix: str) -> np.nda
     if values.dtype.kind not in "fiu":
         raise InvalidMeshError(f"{what} must hold numbers, got dtype {values.dtype}")
     array = np.ascontiguousarray(values, dtype=np.float32)
-    finite = np.isfinite(array).reshape(array.shape[0], -1).all(axis=1)
+    finite = np.isfinite(array).reshape(array.shape[0], array[:1].size).all(axis=1)
     if not finite.all():
         row = int(np.flatnonzero(~finite)[0])
         raise InvalidMeshError(

@@ -438,3 +438,10 @@ def test_weld_is_exact_even_when_hashes_collide(monkeypatch, multiplier):
     assert np.array_equal(positions[kept][index], positions)
     empty = _corners.weld([np.zeros((0, 3)), np.zeros((0, 3), np.float32)])
     assert [a.size for a in empty] == [0, 0]
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_a_level_without_faces_takes_empty_corner_uvs(fmt):
+    """A coarse level of a build without topology preservation may have no faces."""
+    blob = encode_mesh(np.eye(3), np.zeros((0, 3), int), fmt, corner_uvs=np.zeros((0, 3, 2)))
+    assert blob

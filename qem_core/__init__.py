@@ -23,10 +23,15 @@ from .simplify import build
 
 
 def build_mesh(mesh: Mesh, options=None, progress=None) -> ProgressiveMesh:
-    """`build` for a loaded `Mesh` (its name is kept in the metadata)."""
-    pm = build(mesh.vertices, mesh.faces, options=options, progress=progress)
+    """`build` for a loaded `Mesh`, keeping its appearance: texture coordinates (per
+    corner or per vertex), vertex colours and normals enter Hoppe's quadric with the
+    weights of the options, travel with the levels (`ProgressiveMesh.lod_mesh`), and the
+    texture image is kept. The name is kept in the metadata."""
+    pm = build(mesh.vertices, mesh.faces, options=options, progress=progress,
+               attributes_of=mesh)
     if mesh.name:
         pm.metadata["name"] = mesh.name
+    pm.texture = mesh.texture
     return pm
 
 

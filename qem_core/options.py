@@ -52,6 +52,15 @@ class BuildOptions:
         disables pair contraction.
     merge_coincident : bool
         Weld vertices with exactly equal coordinates before building (STL soups).
+    preserve_volume : bool
+        Each contraction keeps the volume enclosed by the faces around it (a linear
+        constraint on the new position, met with a Lagrange multiplier), so closed
+        meshes keep their volume at every level.
+    uv_weight, color_weight, normal_weight : float >= 0
+        Weights of the appearance attributes a mesh carries (`qem_core.build_mesh`:
+        texture coordinates, vertex colours, normals) in Hoppe's quadric: an attribute
+        difference of 1 costs like a distance of weight times the bounding-box
+        diagonal. 0 ignores that attribute (and leaves it out of the levels).
     """
 
     weighting: Weighting = "area"
@@ -61,6 +70,10 @@ class BuildOptions:
     max_face_turn_deg: float = 75.0
     pair_threshold: float = 0.0
     merge_coincident: bool = True
+    preserve_volume: bool = False
+    uv_weight: float = 1.0
+    color_weight: float = 1.0
+    normal_weight: float = 0.5
 
     def __post_init__(self) -> None:
         if self.weighting not in WEIGHTING_CODES:
@@ -74,7 +87,9 @@ class BuildOptions:
         _check_range("boundary_weight", self.boundary_weight, 0.0, 1e6)
         _check_range("max_face_turn_deg", self.max_face_turn_deg, 1e-6, 180.0)
         _check_range("pair_threshold", self.pair_threshold, 0.0, 1.0)
-        for name in ("preserve_topology", "merge_coincident"):
+        for name in ("uv_weight", "color_weight", "normal_weight"):
+            _check_range(name, getattr(self, name), 0.0, 1e6)
+        for name in ("preserve_topology", "merge_coincident", "preserve_volume"):
             if not isinstance(getattr(self, name), bool):
                 raise InvalidOptionsError(f"{name} must be true or false")
 

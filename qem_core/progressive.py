@@ -10,6 +10,12 @@ Split k (level L = n_base + k -> L + 1) undoes contraction J-1-k of the greedy r
 
 ``lod(n)`` replays splits 0..n-n_base-1 over the base mesh: O(n) work and memory, no
 rerun of the simplification.
+
+Appearance attributes (built with `qem_core.build_mesh`) live on wedges (attributes.py),
+numbered like the vertices in the order refinement introduces them. Split k also
+restores the values of the wedges contraction J-1-k kept, brings back the wedges it
+retired, and points the corners that named them back at them; ``lod_mesh(n)`` replays
+both sides.
 """
 
 from __future__ import annotations
@@ -20,9 +26,13 @@ from typing import NamedTuple
 import numpy as np
 
 from ._kernels.refine import apply_split_run
+from ._kernels.refine_wedges import apply_wedge_run
+from .attributes import AttributeLayout, corner_values_to_mesh
 from .errors import CorruptFileError, InvalidOptionsError
+from .mesh import Mesh
 
-__all__ = ["ProgressiveMesh", "VertexSplits", "apply_splits", "check_splits"]
+__all__ = ["ProgressiveMesh", "VertexSplits", "apply_splits", "check_splits",
+           "check_wedge_arrays"]
 
 
 class VertexSplits(NamedTuple):
@@ -47,10 +57,23 @@ class VertexSplits(NamedTuple):
     relabel_faces: np.ndarray
 
 
+# The wedge arrays of a progressive mesh with attributes (all absent without): the
+# values of the base wedges, the wedge of every face corner as of the face's birth, and
+# per split (offsets (K + 1,) int64 into each run) the wedges it updates, those it
+# introduces, and the corners (face * 3 + corner) it points at a new wedge.
+WEDGE_ARRAYS = (
+    "base_wedge_values", "face_wedge_corners",
+    "wedge_update_offsets", "wedge_update_ids", "wedge_update_values",
+    "wedge_new_offsets", "wedge_new_values",
+    "wedge_relabel_offsets", "wedge_relabel_corners", "wedge_relabel_to",
+)
+
+
 class ProgressiveMesh:
     """A mesh that can be served at any vertex count between n_base and n_full.
 
-    Build one with `qem_core.build`; load one with `qem_core.load`.
+    Build one with `qem_core.build` or `qem_core.build_mesh` (which keeps appearance
+    attributes); load one with `qem_core.load`.
     """
 
     def __init__(
@@ -65,6 +88,8 @@ class ProgressiveMesh:
         relabel_faces: np.ndarray,
         split_cost: np.ndarray,
         metadata: dict | None = None,
+        texture: bytes | None = None,
+        **wedge_arrays: np.ndarray,
     ) -> None:
         self.base_vertices = base_vertices
         self.split_vertex = split_vertex
@@ -75,6 +100,13 @@ class ProgressiveMesh:
         self.relabel_faces = relabel_faces
         self.split_cost = split_cost
         self.metadata = dict(metadata or {})
+        self.texture = texture
+        unknown = set(wedge_arrays) - set(WEDGE_ARRAYS)
+        if unknown:
+            raise TypeError(f"unknown progressive mesh arrays {sorted(unknown)}")
+        if wedge_arrays and set(wedge_arrays) != set(WEDGE_ARRAYS):
+            raise CorruptFileError("a progressive mesh with attributes lacks some wedge arrays")
+        self.wedge_arrays = dict(wedge_arrays)
         # error(n) is the worst contraction made to get from n_full down to n: a suffix
         # maximum of the split costs, so it never decreases as n falls.
         suffix = np.maximum.accumulate(split_cost[::-1])[::-1] if split_cost.size else split_cost
@@ -168,6 +200,46 @@ class ProgressiveMesh:
             relabel_faces=self.relabel_faces[r1:r2],
         )
 
+    # -- attributes ----------------------------------------------------------------
+    @property
+    def attribute_layout(self) -> AttributeLayout | None:
+        """Which appearance attributes the levels carry; None for geometry only."""
+        values = self.metadata.get("attributes")
+        return AttributeLayout.from_dict(values) if values and self.wedge_arrays else None
+
+    def lod_mesh(self, n: int) -> Mesh:
+        """The mesh at n vertices (clamped) with its appearance attributes: per-vertex
+        colours and normals, per-corner UVs when the input had them (so seams stay
+        sharp), and the input's texture. Positions and faces are those of ``lod(n)``."""
+        vertices, faces = self.lod(n)
+        layout = self.attribute_layout
+        name = self.metadata.get("name")
+        if layout is None:
+            return Mesh(vertices=vertices, faces=faces, texture=self.texture, name=name)
+        face_wedges, values = self.wedge_level(vertices.shape[0])
+        mesh = corner_values_to_mesh(vertices, faces, face_wedges, values, layout)
+        mesh.texture = self.texture
+        mesh.name = name
+        return mesh
+
+    def wedge_level(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """(face_wedges (F, 3) int32, wedge values (W, k) float32, as weighted) of lod(n)."""
+        w = self.wedge_arrays
+        k = self.clamp(n) - self.n_base
+        n_base_wedges = w["base_wedge_values"].shape[0]
+        new = w["wedge_new_offsets"]
+        values = np.zeros((n_base_wedges + int(new[k]), w["base_wedge_values"].shape[1]),
+                          np.float32)
+        values[:n_base_wedges] = w["base_wedge_values"]
+        face_wedges = w["face_wedge_corners"][: self.level_faces[k]].copy()
+        apply_wedge_run(
+            values, face_wedges, w["wedge_update_offsets"][: k + 1], w["wedge_update_ids"],
+            w["wedge_update_values"], new[: k + 1], w["wedge_new_values"],
+            w["wedge_relabel_offsets"][: k + 1], w["wedge_relabel_corners"],
+            w["wedge_relabel_to"], n_base_wedges,
+        )
+        return face_wedges, values
+
     # -- files ---------------------------------------------------------------------
     def save(self, path) -> None:
         """Write this progressive mesh to one versioned .qpm file."""
@@ -254,3 +326,52 @@ def check_splits(
         np.any(relabel_faces < 0) or np.any(relabel_faces >= faces_before[relabel_at])
     ):
         fail("a split relabels a face that does not exist yet")
+
+
+def check_wedge_arrays(arrays: dict, level_faces: np.ndarray, layout: object) -> None:
+    """Refuse wedge arrays (see WEDGE_ARRAYS) that would index outside the level they
+    are used at, as `check_splits` does for the vertex side. O(size of the data)."""
+
+    def fail(what: str) -> None:
+        raise CorruptFileError(f"inconsistent wedge arrays: {what}")
+
+    k = level_faces.shape[0] - 1
+    base = arrays["base_wedge_values"]
+    try:
+        width = AttributeLayout.from_dict(layout).width
+    except (TypeError, KeyError, ValueError):
+        fail("the metadata does not describe the attributes")
+    if base.ndim != 2 or base.shape[1] != width:
+        fail(f"wedge values have shape {base.shape}, expected (W, {width})")
+    for name in ("wedge_update_offsets", "wedge_new_offsets", "wedge_relabel_offsets"):
+        offsets = arrays[name]
+        if offsets.shape != (k + 1,) or np.any(np.diff(offsets) < 0):
+            fail(f"{name} is not one non-decreasing offset per split")
+        if offsets[0] != 0:
+            fail(f"{name} does not start at 0")
+    updates, new = arrays["wedge_update_offsets"], arrays["wedge_new_offsets"]
+    relabels = arrays["wedge_relabel_offsets"]
+    if (arrays["wedge_update_ids"].shape != (updates[-1],)
+            or arrays["wedge_update_values"].shape != (updates[-1], width)
+            or arrays["wedge_new_values"].shape != (new[-1], width)
+            or arrays["wedge_relabel_corners"].shape != (relabels[-1],)
+            or arrays["wedge_relabel_to"].shape != (relabels[-1],)):
+        fail("array lengths do not match their offsets")
+    corners = arrays["face_wedge_corners"]
+    if corners.shape != (level_faces[-1], 3):
+        fail("there is not one wedge per face corner")
+    # Wedges that exist once split i is applied (index i + 1; 0 for the base).
+    wedges_at = base.shape[0] + new
+    born_at = np.repeat(np.arange(k + 1), np.diff(np.concatenate([[0], level_faces])))
+    if corners.size and (np.any(corners < 0)
+                         or np.any(corners >= wedges_at[born_at][:, None])):
+        fail("a face corner names a wedge that does not exist at its level")
+    update_at = np.repeat(np.arange(k), np.diff(updates))
+    ids = arrays["wedge_update_ids"]
+    if ids.size and (np.any(ids < 0) or np.any(ids >= wedges_at[update_at])):
+        fail("a split updates a wedge that does not exist yet")
+    relabel_at = np.repeat(np.arange(k), np.diff(relabels))
+    to, corner = arrays["wedge_relabel_to"], arrays["wedge_relabel_corners"]
+    if to.size and (np.any(to < 0) or np.any(to >= wedges_at[relabel_at + 1])
+                    or np.any(corner < 0) or np.any(corner >= 3 * level_faces[relabel_at + 1])):
+        fail("a split points a corner outside its level")

@@ -9,6 +9,10 @@ Layout (little-endian)::
     arrays   raw C-order bytes, each at an 8-byte aligned offset from the data start
     crc32    uint32   of every byte before it
 
+Version 2 adds optional arrays: the wedge arrays of a mesh built with appearance
+attributes (`progressive.WEDGE_ARRAYS`, all or none) and the texture image bytes. A file
+without them is written as version 1, so older readers keep reading it.
+
 A file from a newer version, a wrong checksum, or arrays that do not form a consistent
 progressive mesh raise CorruptFileError. docs/formats.md documents the format.
 """
@@ -26,12 +30,12 @@ import msgpack
 import numpy as np
 
 from .errors import CorruptFileError
-from .progressive import ProgressiveMesh, check_splits
+from .progressive import WEDGE_ARRAYS, ProgressiveMesh, check_splits, check_wedge_arrays
 
 __all__ = ["FORMAT_VERSION", "MAGIC", "load", "save_qpm"]
 
 MAGIC = b"QEMPM\x00\r\n"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 
 # name -> (dtype, number of dimensions); the order is the order in the file.
 _ARRAYS = {
@@ -45,14 +49,28 @@ _ARRAYS = {
     "split_cost": ("<f8", 1),
     "vertex_map": ("<i4", 1),
 }
+_WEDGE_DTYPES = {
+    "base_wedge_values": ("<f4", 2), "face_wedge_corners": ("<i4", 2),
+    "wedge_update_offsets": ("<i8", 1), "wedge_update_ids": ("<i4", 1),
+    "wedge_update_values": ("<f4", 2), "wedge_new_offsets": ("<i8", 1),
+    "wedge_new_values": ("<f4", 2), "wedge_relabel_offsets": ("<i8", 1),
+    "wedge_relabel_corners": ("<i8", 1), "wedge_relabel_to": ("<i4", 1),
+}
+assert tuple(_WEDGE_DTYPES) == WEDGE_ARRAYS
+_OPTIONAL_ARRAYS = {**_WEDGE_DTYPES, "texture": ("|u1", 1)}
 
 
 def save_qpm(pm: ProgressiveMesh, path) -> None:
     """Write ``pm`` to ``path`` atomically (temporary file, then rename)."""
     entries, chunks, offset = [], [], 0
-    for name, (dtype, _ndim) in _ARRAYS.items():
-        array = getattr(pm, name, None)
+    optional = dict(pm.wedge_arrays)
+    if pm.texture is not None:
+        optional["texture"] = np.frombuffer(pm.texture, np.uint8)
+    for name, (dtype, _ndim) in {**_ARRAYS, **_OPTIONAL_ARRAYS}.items():
+        array = optional.get(name) if name in _OPTIONAL_ARRAYS else getattr(pm, name, None)
         if array is None:
+            if name in _OPTIONAL_ARRAYS:
+                continue
             array = np.zeros(0, dtype)
         data = np.ascontiguousarray(array, dtype=dtype).tobytes()
         entries.append([name, dtype, list(np.shape(array)), offset])
@@ -60,7 +78,8 @@ def save_qpm(pm: ProgressiveMesh, path) -> None:
         chunks.append(data + b"\0" * padding)
         offset += len(data) + padding
     header = msgpack.packb({"arrays": entries, "metadata": pm.metadata})
-    body = MAGIC + struct.pack("<II", FORMAT_VERSION, len(header)) + header + b"".join(chunks)
+    version = FORMAT_VERSION if optional else 1
+    body = MAGIC + struct.pack("<II", version, len(header)) + header + b"".join(chunks)
     blob = body + struct.pack("<I", zlib.crc32(body))
     path = Path(path)
     fd, tmp = tempfile.mkstemp(dir=path.parent or ".", prefix=path.name, suffix=".tmp")
@@ -102,8 +121,10 @@ def load(source) -> ProgressiveMesh:
     data_start = fixed + header_length
     data_length = len(blob) - 4 - data_start
     arrays = {}
-    for name, (dtype, ndim) in _ARRAYS.items():
+    for name, (dtype, ndim) in {**_ARRAYS, **_OPTIONAL_ARRAYS}.items():
         if name not in entries:
+            if name in _OPTIONAL_ARRAYS:
+                continue
             raise CorruptFileError(f".qpm file lacks the array {name!r}")
         stored_dtype, shape, offset = _array_entry(name, entries[name])
         if stored_dtype != dtype or len(shape) != ndim:
@@ -167,6 +188,12 @@ def _checked_progressive_mesh(arrays: dict, metadata: dict) -> ProgressiveMesh:
     except (TypeError, ValueError):
         raise CorruptFileError(".qpm bounding box is not 2 x 3 numbers") from None
     vertex_map = arrays.pop("vertex_map")
-    pm = ProgressiveMesh(**arrays, metadata=metadata)
+    texture = arrays.pop("texture", None)
+    if any(name in arrays for name in WEDGE_ARRAYS):
+        if not all(name in arrays for name in WEDGE_ARRAYS):
+            raise CorruptFileError(".qpm file has some of the wedge arrays but not all")
+        check_wedge_arrays(arrays, level_faces, metadata.get("attributes"))
+    pm = ProgressiveMesh(**arrays, metadata=metadata,
+                         texture=None if texture is None else texture.tobytes())
     pm.vertex_map = vertex_map
     return pm

@@ -13,6 +13,14 @@ from typing import NamedTuple
 import numpy as np
 
 from ._kernels.adjacency import compact, make_face_lists
+from ._kernels.appearance import (
+    N_SETTINGS,
+    SETTING_UV_OFFSET,
+    SETTING_VOLUME,
+    fill_costs,
+    fill_wedge_quadrics,
+    wedge_row_size,
+)
 from ._kernels.contract import (
     N_PARAMS,
     PARAM_COS_STEP_TURN,
@@ -23,17 +31,21 @@ from ._kernels.contract import (
     STATUS_NEED_PAIR_POOL_SPACE,
     STATUS_NEED_POOL_SPACE,
     STATUS_NEED_RELABEL_SPACE,
+    STATUS_NEED_WEDGE_SPACE,
     STATUS_STEPS_DONE,
     Complex,
     Record,
+    Scratch,
     run_contractions,
 )
-from ._kernels.heap import make_heap
+from ._kernels.heap import heapify, make_heap
 from ._kernels.link import make_neighbourhood, restart_generations
 from ._kernels.pairs import candidate_pairs, make_pairs
 from ._kernels.quadrics import QUADRIC_SIZE, fill_face_quadrics
 from ._kernels.runs import reverse_runs
 from ._kernels.setup import fill_border_quadrics, fill_heap, sum_quadrics
+from .attributes import Wedges, check_options_for_wedges, make_wedges
+from .mesh import Mesh
 from .options import ERROR_MODE_CODES, WEIGHTING_CODES, BuildOptions
 from .prepare import MeshEdges, prepare_mesh_and_edges, unique_edges
 from .progressive import ProgressiveMesh
@@ -45,6 +57,10 @@ __all__ = [
     "contract_greedily",
     "unique_edges",
 ]
+
+# Wedges of one contraction (of a and b together) the scratch space holds; a contraction
+# with more is refused (a vertex with hundreds of UV charts meeting at it).
+MAX_WEDGES_PER_CONTRACTION = 1024
 
 # A direction of the contraction quadric whose eigenvalue is below this fraction of the
 # largest is treated as flat (truncated pseudo-inverse, see _kernels/placement.py).
@@ -72,7 +88,7 @@ def _kernel_params(options: BuildOptions) -> np.ndarray:
 
 
 def _initial_complex(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
-                     mesh_edges: MeshEdges):
+                     mesh_edges: MeshEdges, wedges: Wedges | None):
     n, m = vertices.shape[0], faces.shape[0]
     weighting = WEIGHTING_CODES[options.weighting]
     exact = options.error_mode == "exact"
@@ -98,6 +114,16 @@ def _initial_complex(vertices: np.ndarray, faces: np.ndarray, options: BuildOpti
     edge_quadrics = np.zeros((edges.shape[0] if exact else 0, QUADRIC_SIZE))
     sum_quadrics(faces, face_quadrics, face_edge, border, border_edges, border_quadrics,
                  vertex_quadrics, edge_quadrics, exact)
+    if wedges is None:
+        face_wedges, wedge_values = np.zeros((0, 3), np.int32), np.zeros((0, 0))
+    else:
+        face_wedges = np.array(wedges.face_wedges, np.int32, copy=True)  # rewritten
+        wedge_values = np.array(wedges.values, np.float64, copy=True)
+    k = wedge_values.shape[1]
+    wedge_quadrics = np.zeros((wedge_values.shape[0], wedge_row_size(k)))
+    if wedges is not None:
+        fill_wedge_quadrics(vertices, faces, face_wedges, wedge_values, weighting,
+                            wedge_quadrics)
     cx = Complex(
         vertices=np.array(vertices, np.float64, copy=True),
         vertex_quadrics=vertex_quadrics,
@@ -109,11 +135,36 @@ def _initial_complex(vertices: np.ndarray, faces: np.ndarray, options: BuildOpti
         face_quadrics=face_quadrics,
         face_edge=face_edge,
         edge_quadrics=edge_quadrics,
+        face_wedges=face_wedges,
+        wedge_quadrics=wedge_quadrics,
+        wedge_values=wedge_values,
     )
     return cx, edges
 
 
-def _make_record(n: int, m: int) -> Record:
+def _make_scratch(cx: Complex, options: BuildOptions, wedges: Wedges | None) -> Scratch:
+    n_wedges, k = cx.wedge_values.shape
+    capacity = MAX_WEDGES_PER_CONTRACTION if n_wedges else 0
+    settings = np.zeros(N_SETTINGS)
+    settings[SETTING_VOLUME] = float(options.preserve_volume)
+    settings[SETTING_UV_OFFSET] = -1.0 if wedges is None else float(wedges.layout.offset("uv"))
+    bounds = (np.stack([cx.wedge_values.min(axis=0), cx.wedge_values.max(axis=0)])
+              if n_wedges else np.zeros((2, k)))
+    return Scratch(
+        wedge_tag=np.zeros(n_wedges, np.int64),
+        wedge_slot=np.zeros(n_wedges, np.int32),
+        members=np.zeros((capacity, 2), np.int32),
+        group_rows=np.zeros((capacity, cx.wedge_quadrics.shape[1])),
+        counter=np.zeros(2, np.int64),
+        settings=settings,
+        value_bounds=np.ascontiguousarray(bounds),
+        total=np.zeros(QUADRIC_SIZE),
+        group_values=np.zeros((capacity, k)),
+    )
+
+
+def _make_record(n: int, m: int, n_wedges: int, k: int) -> Record:
+    wedge_capacity = 2 * n_wedges + 64 if n_wedges else 0
     return Record(
         a=np.full(n, -1, np.int32),
         b=np.full(n, -1, np.int32),
@@ -124,7 +175,12 @@ def _make_record(n: int, m: int) -> Record:
         killed=np.full(m, -1, np.int32),
         relabel_end=np.zeros(n, np.int64),
         relabel=np.full(max(8 * n, 64), -1, np.int32),
-        counts=np.zeros(3, np.int64),
+        wedge_log_end=np.zeros(n if n_wedges else 0, np.int64),
+        wedge_log=np.full((wedge_capacity, 2), -1, np.int32),
+        wedge_log_values=np.zeros((wedge_capacity, k)),
+        wedge_relabel_end=np.zeros(n if n_wedges else 0, np.int64),
+        wedge_relabel=np.full((wedge_capacity, 3), -1, np.int32),
+        counts=np.zeros(5, np.int64),
     )
 
 
@@ -141,6 +197,7 @@ def contract_greedily(
     progress: ProgressCallback | None = None,
     max_contractions: int | None = None,
     mesh_edges: MeshEdges | None = None,
+    wedges: Wedges | None = None,
 ) -> ContractionRun:
     """Contract edges (and, with ``options.pair_threshold``, near vertex pairs) greedily
     by quadric error until nothing valid is left.
@@ -149,11 +206,13 @@ def contract_greedily(
     referenced, no degenerate or duplicate face). ``max_contractions`` stops early (the
     tests use it to compare a level of detail with the greedy run stopped there).
     ``mesh_edges``: the edges of ``faces`` if already found (`prepare_mesh_and_edges`).
+    ``wedges``: appearance attributes (attributes.py), kept in Hoppe's quadric.
     """
     n, m = vertices.shape[0], faces.shape[0]
     if mesh_edges is None:
         mesh_edges = unique_edges(faces, n)
-    cx, edges = _initial_complex(vertices, faces, options, mesh_edges)
+    cx, edges = _initial_complex(vertices, faces, options, mesh_edges, wedges)
+    scratch = _make_scratch(cx, options, wedges)
     params = _kernel_params(options)
     lists = make_face_lists(cx.faces, n, capacity=6 * m + 1024)
     pairs = make_pairs(_pairs_for(vertices, edges, options.pair_threshold), n, edges.shape[0])
@@ -161,23 +220,36 @@ def contract_greedily(
     # Candidates: the edges, then the pairs; their ids are the heap's ids.
     candidates = np.concatenate([edges, pairs.ends]) if pairs.ends.size else edges
     heap = make_heap(candidates.shape[0])
-    fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, candidates,
-              options.error_mode == "exact", RANK_TOLERANCE, heap.entries, heap.position,
-              heap.size)
-    record = _make_record(n, m)
+    exact = options.error_mode == "exact"
+    if wedges is None and not options.preserve_volume:
+        fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, candidates, exact,
+                  RANK_TOLERANCE, heap.entries, heap.position, heap.size)
+    else:
+        fill_costs(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, candidates, exact,
+                   RANK_TOLERANCE, cx.faces, cx.face_alive, lists.start, lists.count,
+                   lists.pool, _look(cx, scratch), heap.entries)
+        heap.size[0] = candidates.shape[0]
+        heapify(heap.entries, heap.position, heap.size)
+    record = _make_record(n, m, *cx.wedge_values.shape)
     budget = n if max_contractions is None else max(0, int(max_contractions))
     done = 0
     while done < budget:
         restart_generations(hood)
         status, steps = run_contractions(
             cx, lists, pairs, hood, heap, record, params,
-            min(CHUNK_CONTRACTIONS, budget - done),
+            min(CHUNK_CONTRACTIONS, budget - done), scratch,
         )
         done += steps
         if status == STATUS_EXHAUSTED:
             break
         if status == STATUS_NEED_RELABEL_SPACE:
             record = record._replace(relabel=_grown(record.relabel, -1))
+        elif status == STATUS_NEED_WEDGE_SPACE:
+            record = record._replace(
+                wedge_log=_grown(record.wedge_log, -1),
+                wedge_log_values=_grown(record.wedge_log_values, 0.0),
+                wedge_relabel=_grown(record.wedge_relabel, -1),
+            )
         elif status == STATUS_NEED_POOL_SPACE:
             compact(lists.start, lists.count, lists.pool, lists.used, cx.vertex_alive)
             lists = lists._replace(pool=_grown(lists.pool, -1))
@@ -189,6 +261,13 @@ def contract_greedily(
         if progress is not None:
             progress(min(1.0, done / max(1, n - 4)))
     return ContractionRun(record, cx, done)
+
+
+def _look(cx: Complex, scratch: Scratch) -> tuple:
+    """The tuple of appearance arrays the kernels take (appearance.py)."""
+    return (cx.face_wedges, cx.wedge_quadrics, cx.wedge_values, scratch.wedge_tag,
+            scratch.wedge_slot, scratch.members, scratch.group_rows, scratch.counter,
+            scratch.settings, scratch.value_bounds, scratch.total, scratch.group_values)
 
 
 def _pairs_for(vertices: np.ndarray, edges: np.ndarray, pair_threshold: float) -> np.ndarray:
@@ -234,6 +313,8 @@ def assemble_progressive_mesh(run: ContractionRun, metadata: dict) -> Progressiv
     split_positions = np.stack(
         [record.position_a[reversed_j], record.position_b[reversed_j]], axis=1
     )
+    wedge_arrays = (_wedge_splits(run, face_order, level_of_face)
+                    if cx.wedge_values.shape[0] else {})
     return ProgressiveMesh(
         base_vertices=np.ascontiguousarray(cx.vertices[base_slots]),
         split_vertex=level_of_slot[record.a[reversed_j]].astype(np.int32),
@@ -244,7 +325,55 @@ def assemble_progressive_mesh(run: ContractionRun, metadata: dict) -> Progressiv
         relabel_faces=relabel_faces.astype(np.int32),
         split_cost=np.ascontiguousarray(record.cost[reversed_j]),
         metadata=metadata,
+        **wedge_arrays,
     )
+
+
+def _reversed_run_rows(ends: np.ndarray, j_count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of a run-coded record (runs ending at ``ends``) in split order, and the
+    split each belongs to."""
+    total = int(ends[j_count - 1]) if j_count else 0
+    rows = np.zeros(total, np.int64)
+    reverse_runs(np.arange(total, dtype=np.int64), ends, j_count, rows)
+    lengths = np.diff(ends[:j_count], prepend=0)[::-1]
+    return rows, np.repeat(np.arange(j_count), lengths)
+
+
+def _offsets(split_of_row: np.ndarray, j_count: int) -> np.ndarray:
+    return np.concatenate([[0], np.cumsum(np.bincount(split_of_row, minlength=j_count))]
+                          ).astype(np.int64)
+
+
+def _wedge_splits(run: ContractionRun, face_order: np.ndarray,
+                  level_of_face: np.ndarray) -> dict:
+    """The wedge side of the progressive mesh (see `ProgressiveMesh`), from the log of
+    `appearance.merge_wedges`: wedges renumbered like vertices (the survivors of the
+    whole run first, then those retired by the last contraction, and so on back)."""
+    record, cx, j_count = run
+    rows, split_of = _reversed_run_rows(record.wedge_log_end, j_count)
+    log, log_values = record.wedge_log[rows], record.wedge_log_values[rows]
+    retired = log[:, 0] != log[:, 1]
+    base = np.ones(cx.wedge_values.shape[0], bool)
+    base[log[retired, 0]] = False
+    base_wedges = np.flatnonzero(base)
+    level_of_wedge = np.full(base.size, -1, np.int64)
+    level_of_wedge[base_wedges] = np.arange(base_wedges.size)
+    level_of_wedge[log[retired, 0]] = base_wedges.size + np.arange(int(retired.sum()))
+
+    relabel_rows, relabel_split = _reversed_run_rows(record.wedge_relabel_end, j_count)
+    relabel = record.wedge_relabel[relabel_rows].astype(np.int64)
+    return {
+        "base_wedge_values": cx.wedge_values[base_wedges].astype(np.float32),
+        "face_wedge_corners": level_of_wedge[cx.face_wedges[face_order]].astype(np.int32),
+        "wedge_update_offsets": _offsets(split_of[~retired], j_count),
+        "wedge_update_ids": level_of_wedge[log[~retired, 0]].astype(np.int32),
+        "wedge_update_values": log_values[~retired].astype(np.float32),
+        "wedge_new_offsets": _offsets(split_of[retired], j_count),
+        "wedge_new_values": log_values[retired].astype(np.float32),
+        "wedge_relabel_offsets": _offsets(relabel_split, j_count),
+        "wedge_relabel_corners": level_of_face[relabel[:, 0]] * 3 + relabel[:, 1],
+        "wedge_relabel_to": level_of_wedge[relabel[:, 2]].astype(np.int32),
+    }
 
 
 def build(
@@ -252,6 +381,8 @@ def build(
     faces,
     options: BuildOptions | dict | None = None,
     progress: ProgressCallback | None = None,
+    *,
+    attributes_of: Mesh | None = None,
 ) -> ProgressiveMesh:
     """Simplify a triangle mesh once and record it as a progressive mesh.
 
@@ -259,6 +390,8 @@ def build(
     (unreferenced vertices dropped, exactly coincident vertices welded, degenerate and
     duplicate faces dropped; see `prepare_mesh`), then contracted greedily until nothing
     valid is left. ``progress(fraction)`` is called as the work goes on.
+    ``attributes_of``: the `Mesh` whose vertex attributes and corner UVs are kept
+    (`qem_core.build_mesh` passes it), each weighted by its option.
     Raises InvalidMeshError for unusable input and InvalidOptionsError for bad options.
     """
     if not isinstance(options, BuildOptions):
@@ -271,8 +404,15 @@ def build(
         if progress is not None:
             progress(0.02 + 0.93 * fraction)
 
+    diagonal = float(np.linalg.norm(prepared.vertices.max(axis=0) - prepared.vertices.min(axis=0)))
+    wedges = None
+    if attributes_of is not None:
+        wedges = make_wedges(attributes_of, prepared.face_map, prepared.faces, options,
+                             diagonal)
+        if wedges is not None:
+            check_options_for_wedges(options)
     run = contract_greedily(prepared.vertices, prepared.faces, options, contraction_progress,
-                            mesh_edges=mesh_edges)
+                            mesh_edges=mesh_edges, wedges=wedges)
     metadata = {
         "bbox": np.stack([prepared.vertices.min(axis=0), prepared.vertices.max(axis=0)]).tolist(),
         "options": options.to_dict(),
@@ -280,6 +420,8 @@ def build(
         "input_vertices": int(np.asarray(vertices).shape[0]),
         "input_faces": int(np.asarray(faces).shape[0]),
     }
+    if wedges is not None:
+        metadata["attributes"] = wedges.layout.to_dict()
     pm = assemble_progressive_mesh(run, metadata)
     # For each input vertex, its level number (-1 if dropped by preparation).
     level_of_slot = _level_of_slot(run)

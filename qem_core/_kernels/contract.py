@@ -41,6 +41,13 @@ import numba
 import numpy as np
 
 from .adjacency import compact
+from .appearance import (
+    SETTING_UV_OFFSET,
+    candidate_cost,
+    merge_wedges,
+    new_wedge_values,
+    uv_keeps_orientation,
+)
 from .guards import faces_keep_orientation, leaves_a_vertex_bare
 from .heap import cost_key, pair, remove, top, update
 from .link import (
@@ -54,7 +61,6 @@ from .link import (
 )
 from .memory import borrow, prefetch
 from .pairs import merge_pairs, update_vertex_pairs
-from .placement import edge_cost
 from .quadrics import QUADRIC_SIZE
 
 STATUS_EXHAUSTED = 0  # nothing valid left to contract
@@ -62,6 +68,7 @@ STATUS_STEPS_DONE = 1  # max_steps contractions done, more may follow
 STATUS_NEED_RELABEL_SPACE = 2
 STATUS_NEED_POOL_SPACE = 3
 STATUS_NEED_PAIR_POOL_SPACE = 4
+STATUS_NEED_WEDGE_SPACE = 5
 
 # Indices into the float parameter vector.
 PARAM_RANK_TOLERANCE = 0
@@ -84,6 +91,9 @@ class Complex(NamedTuple):
     face_quadrics: np.ndarray  # (m, 10) float64 (triangle quadrics, exact mode)
     face_edge: np.ndarray  # (m, 3) int32: edge id of side k (corner k to k + 1)
     edge_quadrics: np.ndarray  # (E, 10) float64 by edge id (exact mode only; else (0, 10))
+    face_wedges: np.ndarray  # (m, 3) int32 wedge of each corner (appearance.py); or (0, 3)
+    wedge_quadrics: np.ndarray  # (W, 11 + 4k) float64 appearance quadrics; or (0, 11)
+    wedge_values: np.ndarray  # (W, k) float64 attribute values, weighted; or (0, 0)
 
     @property
     def edge_slot(self) -> dict[int, int]:
@@ -108,7 +118,26 @@ class Record(NamedTuple):
     killed: np.ndarray  # (m,) int32 faces that died, in order
     relabel_end: np.ndarray  # (n,) int64
     relabel: np.ndarray  # (capacity,) int32 faces whose corner b became a
-    counts: np.ndarray  # (3,) int64: contractions, killed used, relabel used
+    wedge_log_end: np.ndarray  # (n,) int64
+    wedge_log: np.ndarray  # (capacity, 2) int32 (wedge, its group's survivor)
+    wedge_log_values: np.ndarray  # (capacity, k) float64, the wedge's values before
+    wedge_relabel_end: np.ndarray  # (n,) int64
+    wedge_relabel: np.ndarray  # (capacity, 3) int32 (face, corner, retired wedge it named)
+    counts: np.ndarray  # (5,) int64: contractions, killed, relabel, wedge log, wedge relabel
+
+
+class Scratch(NamedTuple):
+    """Work space of the appearance and volume costs (appearance.py)."""
+
+    wedge_tag: np.ndarray  # (W,) int64
+    wedge_slot: np.ndarray  # (W,) int32
+    members: np.ndarray  # (C, 2) int32
+    group_rows: np.ndarray  # (C, 11 + 4k) float64
+    counter: np.ndarray  # (2,) int64
+    settings: np.ndarray  # (4,) float64
+    value_bounds: np.ndarray  # (2, k) float64
+    total: np.ndarray  # (10,) float64
+    group_values: np.ndarray  # (C, k) float64
 
 
 def _prefetch_neighbourhood(vertices, vertex_quadrics, edge_quadrics, face_normals, faces,
@@ -165,7 +194,7 @@ prefetch_next = numba.njit(cache=True, inline="always")(_prefetch_next)
 def _update_vertex_edges(vertices, vertex_quadrics, edge_quadrics, faces, face_alive,
                          face_edge, start, count, pool, near, generation, heap_entries,
                          heap_position, heap_size, v, only_missing, exact, rank_tolerance,
-                         quadric, position):
+                         quadric, position, look):
     """Give every edge of v its current cost in the heap (inserting it if it was out).
 
     With ``only_missing``, edges already in the heap are left alone (their cost is
@@ -200,8 +229,9 @@ def _update_vertex_edges(vertices, vertex_quadrics, edge_quadrics, faces, face_a
             edge = face_edge[f, corner if step == 1 else (corner + 2) % 3]
             if only_missing and heap_position[edge] >= 0:
                 continue
-            cost = edge_cost(vertices, vertex_quadrics, edge_quadrics, v, x, edge, exact,
-                             rank_tolerance, quadric, position)
+            cost = candidate_cost(vertices, vertex_quadrics, edge_quadrics, v, x, edge, exact,
+                                  rank_tolerance, quadric, position, faces, face_alive, start,
+                                  count, pool, look)
             update(heap_entries, heap_position, heap_size, cost_key(cost), pair(v, x),
                    edge)
     return g
@@ -322,7 +352,7 @@ def _update_after_contraction(vertices, vertex_quadrics, vertex_refused, edge_qu
                               generation, retry, heap_entries, heap_position, heap_size,
                               pair_ends, pair_alive, first_pair, pair_start, pair_count,
                               pair_pool, a, b, killed, killed_from, killed_to, exact,
-                              rank_tolerance, quadric, position):
+                              rank_tolerance, quadric, position, look):
     """New costs for the edges (and pairs) of the new vertex a; edges left without a
     face leave the heap; neighbours that had a candidate refused get their missing ones
     back, since a's change may have lifted the reason. ``retry`` is (n,) int32 scratch.
@@ -331,12 +361,13 @@ def _update_after_contraction(vertices, vertex_quadrics, vertex_refused, edge_qu
     g = update_vertex_edges(vertices, vertex_quadrics, edge_quadrics, faces, face_alive,
                             face_edge, start, count, pool, near, generation, heap_entries,
                             heap_position, heap_size, a, False, exact, rank_tolerance,
-                            quadric, position)
+                            quadric, position, look)
     if has_pairs:
         update_vertex_pairs(vertices, vertex_quadrics, edge_quadrics, near, generation,
                             heap_entries, heap_position, heap_size, pair_ends, pair_alive,
                             first_pair, pair_start, pair_count, pair_pool, a, g, False, exact,
-                            rank_tolerance, quadric, position)
+                            rank_tolerance, quadric, position, faces, face_alive, start, count,
+                            pool, look)
     # Edge ax of a dying face abx lives on only if another face has it (always, unless
     # the input is non-manifold or topology is not preserved).
     for i in range(killed_from, killed_to):
@@ -358,18 +389,19 @@ def _update_after_contraction(vertices, vertex_quadrics, vertex_refused, edge_qu
         g = update_vertex_edges(vertices, vertex_quadrics, edge_quadrics, faces, face_alive,
                                 face_edge, start, count, pool, near, generation,
                                 heap_entries, heap_position, heap_size, retry[i], True, exact,
-                                rank_tolerance, quadric, position)
+                                rank_tolerance, quadric, position, look)
         if has_pairs:
             update_vertex_pairs(vertices, vertex_quadrics, edge_quadrics, near, generation,
                                 heap_entries, heap_position, heap_size, pair_ends, pair_alive,
                                 first_pair, pair_start, pair_count, pair_pool, retry[i], g,
-                                True, exact, rank_tolerance, quadric, position)
+                                True, exact, rank_tolerance, quadric, position, faces,
+                                face_alive, start, count, pool, look)
 
 
 update_after_contraction = numba.njit(cache=True)(_update_after_contraction)
 
 
-def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps):
+def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, scratch):
     """Contract greedily until max_steps are done or nothing valid is left.
 
     Returns (status, steps done). Never raises; Python reads the status.
@@ -399,6 +431,18 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps):
     record_cost, record_counts = borrow(record.cost), borrow(record.counts)
     killed, killed_end = borrow(record.killed), borrow(record.killed_end)
     relabel, relabel_end = borrow(record.relabel), borrow(record.relabel_end)
+    wedge_log, wedge_log_values = borrow(record.wedge_log), borrow(record.wedge_log_values)
+    wedge_log_end = borrow(record.wedge_log_end)
+    wedge_relabel = borrow(record.wedge_relabel)
+    wedge_relabel_end = borrow(record.wedge_relabel_end)
+    look = (
+        borrow(cx.face_wedges), borrow(cx.wedge_quadrics), borrow(cx.wedge_values),
+        borrow(scratch.wedge_tag), borrow(scratch.wedge_slot), borrow(scratch.members),
+        borrow(scratch.group_rows), borrow(scratch.counter), borrow(scratch.settings),
+        borrow(scratch.value_bounds), borrow(scratch.total), borrow(scratch.group_values),
+    )
+    has_wedges = cx.wedge_quadrics.shape[0] > 0
+    has_uvs = has_wedges and scratch.settings[SETTING_UV_OFFSET] >= 0.0
     quadric = np.zeros(QUADRIC_SIZE)
     position = np.zeros(3)
     steps = 0
@@ -419,6 +463,11 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps):
                 return STATUS_NEED_PAIR_POOL_SPACE, steps
         if record_counts[2] + count[b] > relabel.shape[0]:
             return STATUS_NEED_RELABEL_SPACE, steps
+        if has_wedges and (
+            record_counts[3] + count[a] + count[b] > wedge_log.shape[0]
+            or record_counts[4] + count[a] + count[b] > wedge_relabel.shape[0]
+        ):
+            return STATUS_NEED_WEDGE_SPACE, steps
         generation[0] += 1
         g = generation[0]
         gather(faces, face_alive, face_edge, start, count, pool, a, b, near, g)
@@ -445,9 +494,21 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps):
             vertex_refused[a] = 1
             vertex_refused[b] = 1
             continue
-        cost = edge_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact,
-                         rank_tolerance, quadric, position)
+        cost = candidate_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact,
+                              rank_tolerance, quadric, position, faces, face_alive, start,
+                              count, pool, look)
         px, py, pz = position[0], position[1], position[2]
+        if has_wedges:
+            if look[7][1] < 0:
+                vertex_refused[a] = 1  # more wedges than the scratch space holds
+                vertex_refused[b] = 1
+                continue
+            new_wedge_values(position, look)
+            if has_uvs and not uv_keeps_orientation(faces, face_alive, start, count, pool,
+                                                    a, b, look):
+                vertex_refused[a] = 1
+                vertex_refused[b] = 1
+                continue
         prefetch_next(heap_entries, heap_size, start, count, pool, faces, face_edge, 1)
         if not faces_keep_orientation(vertices, faces, face_alive, face_normals, start, count,
                                       pool, a, b, px, py, pz, cos_step):
@@ -468,6 +529,15 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps):
             position_b[j, d] = vertices[b, d]
         record_cost[j] = cost
         killed_from = record_counts[1]
+        if has_wedges:
+            n_log, n_wedge_relabel = merge_wedges(
+                faces, face_alive, start, count, pool, a, b, look, wedge_log,
+                wedge_log_values, record_counts[3], wedge_relabel, record_counts[4],
+            )
+            wedge_log_end[j] = n_log
+            wedge_relabel_end[j] = n_wedge_relabel
+            record_counts[3] = n_log
+            record_counts[4] = n_wedge_relabel
         n_killed, n_relabel = rewrite_faces(
             faces, face_alive, start, count, pool, used, a, b, killed,
             killed_from, relabel, record_counts[2],
@@ -488,7 +558,7 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps):
                                  generation, retry, heap_entries, heap_position, heap_size,
                                  pair_ends, pair_alive, first_pair, pair_start, pair_count,
                                  pair_pool, a, b, killed, killed_from, n_killed, exact,
-                                 rank_tolerance, quadric, position)
+                                 rank_tolerance, quadric, position, look)
     return STATUS_STEPS_DONE, steps
 
 

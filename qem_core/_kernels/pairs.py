@@ -24,9 +24,9 @@ import numba
 import numpy as np
 
 from .adjacency import make_face_lists
+from .appearance import candidate_cost
 from .heap import cost_key, pair, remove, update
 from .link import NEAR_SCRATCH
-from .placement import edge_cost
 
 # At most this many pairs per vertex, its nearest (see the module docstring).
 MAX_PAIRS_PER_VERTEX = 8
@@ -287,7 +287,8 @@ merge_pairs = numba.njit(cache=True)(_merge_pairs)
 def _update_vertex_pairs(vertices, vertex_quadrics, edge_quadrics, near, generation,
                          heap_entries, heap_position, heap_size, ends, alive, first,
                          pair_start, pair_count, pair_pool, v, g_faces, only_missing, exact,
-                         rank_tolerance, quadric, position):
+                         rank_tolerance, quadric, position, faces, face_alive, start, count,
+                         pool, look):
     """``update_vertex_edges`` for the pairs of v, which must have run first (its
     neighbours carry tag ``g_faces``): a pair whose other end now shares a face with v is
     an edge, and one that repeats an earlier pair of v is a duplicate; both die."""
@@ -307,8 +308,9 @@ def _update_vertex_pairs(vertices, vertex_quadrics, edge_quadrics, near, generat
         near[y, NEAR_SCRATCH] = g
         if only_missing and heap_position[candidate] >= 0:
             continue
-        cost = edge_cost(vertices, vertex_quadrics, edge_quadrics, v, y, candidate, exact,
-                         rank_tolerance, quadric, position)
+        cost = candidate_cost(vertices, vertex_quadrics, edge_quadrics, v, y, candidate,
+                              exact, rank_tolerance, quadric, position, faces, face_alive,
+                              start, count, pool, look)
         update(heap_entries, heap_position, heap_size, cost_key(cost), pair(v, y), candidate)
 
 

@@ -33,11 +33,9 @@ from ._kernels.stream_coding import (
     LONG_DATA,
     NO_CORNER,
     SHORT_DATA,
-    code_positions,
     decode_connectivity,
     encode_connectivity,
     link_corners,
-    uncode_positions,
 )
 from .errors import CorruptFileError, InvalidOptionsError
 from .progressive import ProgressiveMesh, VertexSplits
@@ -103,19 +101,16 @@ def _unzigzag(values: np.ndarray) -> np.ndarray:
 
 def _encode_frame(splits: VertexSplits, state: _State, quantised: np.ndarray, grid: Grid) -> bytes:
     k = splits.split_vertex.shape[0]
+    mid = np.zeros((k, 3), np.int64)
+    span = np.zeros((k, 3), np.int64)
     codes, thirds, backs, masks, status = encode_connectivity(
         state.faces, splits.faces_from, state.head, state.nxt, splits.n_from,
         splits.split_vertex, splits.new_faces, splits.new_face_counts,
-        splits.relabel_offsets, splits.relabel_faces,
+        splits.relabel_offsets, splits.relabel_faces, quantised,
+        grid.quantise(splits.split_positions), mid, span,
     )  # fmt: skip
     if status:
         raise ValueError("inconsistent splits: a relabelled face has no corner s")
-    mid = np.zeros((k, 3), np.int64)
-    span = np.zeros((k, 3), np.int64)
-    code_positions(
-        quantised, splits.split_vertex, grid.quantise(splits.split_positions), splits.n_from,
-        mid, span,
-    )  # fmt: skip
     body = {
         "format": "qem-splits",
         "version": STREAM_VERSION,
@@ -277,18 +272,15 @@ class SplitStreamDecoder:
         state = _state(self.faces, n_to, faces_from + n_new)
         if state is None:
             raise CorruptFileError("the mesh being refined has a face naming no vertex")
-        status, split_vertex, _, _ = decode_connectivity(
+        quantised = np.zeros((n_to, 3), np.int64)
+        quantised[:n_from] = self.quantised
+        status, _, _, _ = decode_connectivity(
             state.faces, faces_from, state.head, state.nxt, n_from, split_back, counts,
-            codes, thirds, backs, masks,
+            codes, thirds, backs, masks, quantised, mid.reshape(3, k).T.copy(),
+            span.reshape(3, k).T.copy(),
         )  # fmt: skip
         if status:
             raise CorruptFileError(f"split frame: {_STATUS[status]}")
-        quantised = np.zeros((n_to, 3), np.int64)
-        quantised[:n_from] = self.quantised
-        uncode_positions(
-            quantised, split_vertex, mid.reshape(3, k).T.copy(), span.reshape(3, k).T.copy(),
-            n_from,
-        )  # fmt: skip
         self.faces = state.faces
         self.quantised = quantised
         self.grid = grid

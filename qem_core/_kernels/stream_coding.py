@@ -32,6 +32,9 @@ EXPLICIT = 6
 # The fan walk is quadratic in the number of corners of s; beyond this many the
 # prediction is the empty mask (the mask is then stored as it is).
 PREDICT_LIMIT = 64
+# Rings larger than this get no span prediction (keeps every product below 2^53, so a
+# JavaScript decoder computes the same floors in float64).
+SPAN_RING_LIMIT = 64
 
 # Decoder status codes (0: fine); stream.py turns them into messages.
 BAD_VERTEX = 1
@@ -197,6 +200,68 @@ def _scratch(head, nxt, s, cs, nb, mark):
 
 
 @numba.njit(cache=True)
+def _ring_sum(faces, head, nxt, v, other, quantised, total, nb):
+    """Sum of the positions of v's distinct neighbours other than ``other`` into total;
+    returns their number (``nb`` is scratch with room for twice v's corners)."""
+    m = 0
+    c = head[v]
+    while c != -1:
+        f = c // 3
+        for j in range(3):
+            w = faces[f, j]
+            if w != v and w != other:
+                nb[m] = w
+                m += 1
+        c = nxt[c]
+    nb[:m].sort()
+    total[:] = 0
+    count = 0
+    for q in range(m):
+        if q == 0 or nb[q] != nb[q - 1]:
+            count += 1
+            for d in range(3):
+                total[d] += quantised[nb[q], d]
+    return count
+
+
+@numba.njit(cache=True)
+def _span_prediction(faces, head, nxt, s, t, quantised, nb, prediction):
+    """The predicted t - s_new once the split's connectivity is applied: each of s and t
+    at the centroid of its ring (which holds the other), solved for both. With A the
+    other neighbours of t (a of them) and B those of s (b): t (a + 1) = sum A + s and
+    s (b + 1) = sum B + t, so t = (sum A (b + 1) + sum B) / d and s = (sum B (a + 1) +
+    sum A) / d, d = (a + 1)(b + 1) - 1, each floored. Zero when a or b is 0 or over
+    SPAN_RING_LIMIT."""
+    sum_a = np.zeros(3, np.int64)
+    sum_b = np.zeros(3, np.int64)
+    a = _ring_sum(faces, head, nxt, t, s, quantised, sum_a, nb)
+    b = _ring_sum(faces, head, nxt, s, t, quantised, sum_b, nb)
+    prediction[:] = 0
+    if a == 0 or b == 0 or a > SPAN_RING_LIMIT or b > SPAN_RING_LIMIT:
+        return
+    den = (a + 1) * (b + 1) - 1
+    for d in range(3):
+        pt = (sum_a[d] * (b + 1) + sum_b[d]) // den
+        ps = (sum_b[d] * (a + 1) + sum_a[d]) // den
+        prediction[d] = pt - ps
+
+
+@numba.njit(cache=True)
+def _ring_room(head, nxt, s, t, nb):
+    """nb, grown to hold twice the corners of s and of t if need be."""
+    need = 0
+    c = head[s]
+    while c != -1:
+        need += 2
+        c = nxt[c]
+    c = head[t]
+    while c != -1:
+        need += 2
+        c = nxt[c]
+    return nb if need <= nb.shape[0] else np.empty(2 * need, np.int64)
+
+
+@numba.njit(cache=True)
 def _grow(array, need):
     if need <= array.shape[0]:
         return array
@@ -218,13 +283,23 @@ def encode_connectivity(
     new_face_counts,
     relabel_offsets,
     relabel_faces,
+    quantised,
+    split_quantised,
+    mid,
+    span,
 ):
     """Code splits n_from.. against the state (faces[:faces_from], head, nxt), which is
     advanced to the level after the last split (faces must have room for the new faces).
 
+    Positions: ``quantised`` (>= n_to, 3) int64 holds the level's grid positions and is
+    advanced too; split_quantised (K, 2, 3) are the new s and t; written out per split:
+    mid[i] = floor((s_new + t) / 2) - old s (the quadric optimum lies near the middle of
+    the edge it collapsed) and span[i] = t - s_new - ``_span_prediction``.
+
     Returns (codes uint8, thirds uint8, backs int64, masks uint8, status): status is
     NO_CORNER if a relabelled face has no corner s (inconsistent splits), else 0.
     """
+    prediction = np.zeros(3, np.int64)
     k = split_vertex.shape[0]
     n_new = new_faces.shape[0]
     codes = np.empty(n_new, np.uint8)
@@ -301,6 +376,16 @@ def encode_connectivity(
             _append_face(faces, head, nxt, face, new_faces[q, 0], new_faces[q, 1], new_faces[q, 2])
             face += 1
         new += new_face_counts[i]
+        nb = _ring_room(head, nxt, s, t, nb)
+        _span_prediction(faces, head, nxt, s, t, quantised, nb, prediction)
+        for d in range(3):
+            old = quantised[s, d]
+            a = split_quantised[i, 0, d]
+            b = split_quantised[i, 1, d]
+            mid[i, d] = ((a + b) >> 1) - old
+            span[i, d] = b - a - prediction[d]
+            quantised[s, d] = a
+            quantised[t, d] = b
     return codes, thirds[:n_third], backs[:n_back], masks[:n_mask], 0
 
 
@@ -317,15 +402,19 @@ def decode_connectivity(
     thirds,
     backs,
     masks,
+    quantised,
+    mid,
+    span,
 ):
     """Inverse of ``encode_connectivity``: advances the state (faces must have room for
-    sum(new_face_counts) more faces, head for the new vertices).
+    sum(new_face_counts) more faces, head and quantised for the new vertices).
 
     Returns (status, split_vertex, relabel_counts, relabel_faces): status 0 when every
     field was consumed exactly and every index was in range, else a status code (the
     state is then partly advanced and must be dropped).
     """
     k = split_back.shape[0]
+    prediction = np.zeros(3, np.int64)
     split_vertex = np.zeros(k, np.int32)
     relabel_counts = np.zeros(k, np.int64)
     relabel_faces = np.empty(max(16, 2 * k), np.int32)
@@ -424,49 +513,18 @@ def decode_connectivity(
                 corner_id = 3 * f + j
                 nxt[corner_id] = head[v]
                 head[v] = corner_id
+        nb = _ring_room(head, nxt, s, t, nb)
+        _span_prediction(faces, head, nxt, s, t, quantised, nb, prediction)
+        for d in range(3):
+            old = quantised[s, d]
+            m = mid[i, d] + old
+            e = span[i, d] + prediction[d]
+            # a + b = 2m + (e & 1) and b - a = e
+            a = (2 * m + (e & 1) - e) >> 1
+            quantised[s, d] = a
+            quantised[t, d] = a + e
     if at_code != codes.shape[0] or at_third != thirds.shape[0]:
         return LONG_DATA, split_vertex, relabel_counts, relabel_faces[:n_relabel]
     if at_back != backs.shape[0] or at_mask != masks.shape[0]:
         return LONG_DATA, split_vertex, relabel_counts, relabel_faces[:n_relabel]
     return 0, split_vertex, relabel_counts, relabel_faces[:n_relabel]
-
-
-@numba.njit(cache=True)
-def code_positions(quantised, split_vertex, split_quantised, first_new, mid, span):
-    """Positions of splits against the old position of s, advancing ``quantised``.
-
-    mid[k] = floor((s_new + t) / 2) - old (the quadric optimum lies near the middle of
-    the edge it collapsed), span[k] = t - s_new (the edge).
-    """
-    for k in range(split_vertex.shape[0]):
-        s = split_vertex[k]
-        for d in range(3):
-            old = quantised[s, d]
-            a = split_quantised[k, 0, d]
-            b = split_quantised[k, 1, d]
-            mid[k, d] = ((a + b) >> 1) - old
-            span[k, d] = b - a
-            quantised[s, d] = a
-            quantised[first_new + k, d] = b
-
-
-@numba.njit(cache=True)
-def uncode_positions(quantised, split_vertex, mid, span, first_new):
-    """Inverse of ``code_positions``: advances ``quantised`` (rows of new vertices are
-    written). Returns the (K, 2, 3) deltas of s_new and t against the old s."""
-    k_count = split_vertex.shape[0]
-    deltas = np.zeros((k_count, 2, 3), np.int64)
-    for k in range(k_count):
-        s = split_vertex[k]
-        for d in range(3):
-            old = quantised[s, d]
-            m = mid[k, d] + old
-            e = span[k, d]
-            # a + b = 2m + (e & 1) and b - a = e
-            a = (2 * m + (e & 1) - e) >> 1
-            b = a + e
-            deltas[k, 0, d] = a - old
-            deltas[k, 1, d] = b - old
-            quantised[s, d] = a
-            quantised[first_new + k, d] = b
-    return deltas

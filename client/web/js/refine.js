@@ -28,6 +28,7 @@ export const MESH_VERSION = 1;
 const EXPLICIT_FACE = 6; // face codes 0-2: (s, t, x) rotated; 3-5: (t, s, x); 6: explicit
 const ESCAPE = 255; // a third corner given as a back-distance, not as a neighbour index
 const PREDICT_LIMIT = 64; // as qem_core/_kernels/stream_coding.py
+const SPAN_RING_LIMIT = 64; // as stream_coding.py: products stay below 2^53
 const FRAME_LIMIT = 64 << 20; // as qem_core.stream: a larger length means a broken stream
 const INFLATED_LIMIT = 256 << 20; // as qem_core.stream: a frame may not inflate further
 
@@ -347,6 +348,49 @@ class SplitState {
     }
   }
 
+  /** Sum of the grid positions of v's distinct neighbours other than `other` into
+   * total; returns their number (stream_coding._ring_sum). */
+  ringSum(v, other, total) {
+    const { faces, nb, q } = this;
+    let m = 0;
+    for (let c = this.head[v]; c !== -1; c = this.next[c]) {
+      const f = c - (c % 3);
+      for (let j = 0; j < 3; j++) {
+        const w = faces[f + j];
+        if (w !== v && w !== other) nb[m++] = w;
+      }
+    }
+    nb.subarray(0, m).sort();
+    total.fill(0);
+    let count = 0;
+    for (let j = 0; j < m; j++) {
+      if (j > 0 && nb[j] === nb[j - 1]) continue;
+      count++;
+      for (let d = 0; d < 3; d++) total[d] += q[3 * nb[j] + d];
+    }
+    return count;
+  }
+
+  /** The predicted t - s_new once the split's faces are in place: s and t each at the
+   * centroid of its ring, solved for both, floored (stream_coding._span_prediction). */
+  spanPrediction(s, t, prediction) {
+    let need = 0;
+    for (const v of [s, t]) for (let c = this.head[v]; c !== -1; c = this.next[c]) need += 2;
+    if (need > this.nb.length) this.nb = new Int32Array(2 * need);
+    const sumA = [0, 0, 0];
+    const sumB = [0, 0, 0];
+    const a = this.ringSum(t, s, sumA);
+    const b = this.ringSum(s, t, sumB);
+    prediction.fill(0);
+    if (a === 0 || b === 0 || a > SPAN_RING_LIMIT || b > SPAN_RING_LIMIT) return;
+    const den = (a + 1) * (b + 1) - 1;
+    for (let d = 0; d < 3; d++) {
+      const pt = Math.floor((sumA[d] * (b + 1) + sumB[d]) / den);
+      const ps = Math.floor((sumB[d] * (a + 1) + sumA[d]) / den);
+      prediction[d] = pt - ps;
+    }
+  }
+
   /** The first corner of face f equal to s becomes t; false if there is none. */
   relabel(f, s, t) {
     for (let j = 0; j < 3; j++) {
@@ -451,6 +495,7 @@ export class ProgressiveLevels {
     let atBack = 0;
     let atMask = 0;
     let face = frame.facesFrom;
+    const prediction = [0, 0, 0];
     for (let i = 0; i < k; i++) {
       const t = nFrom + i;
       const back = frame.splitBack[i];
@@ -513,11 +558,12 @@ export class ProgressiveLevels {
         this.relabelFaces[relabel++] = f;
       }
       for (let c = 3 * firstNew; c < 3 * face; c++) state.link(sf[c], c);
-      // Positions: a + b = 2 (old + mid) + (span & 1), b - a = span (code_positions).
+      // Positions: a + b = 2 (old + mid) + (e & 1), e = b - a = span + prediction.
+      state.spanPrediction(s, t, prediction);
       for (let axis = 0; axis < 3; axis++) {
         const old = q[3 * s + axis];
         const m = mid[axis * k + i] + old;
-        const e = span[axis * k + i];
+        const e = span[axis * k + i] + prediction[axis];
         const a = (2 * m + (e & 1) - e) / 2;
         q[3 * s + axis] = a;
         q[3 * t + axis] = a + e;

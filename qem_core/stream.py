@@ -1,17 +1,22 @@
-"""The vertex-split stream: msgpack frames, positions quantised and delta-coded, deflated.
+"""The vertex-split stream: msgpack frames, connectivity and positions coded against the
+mesh being refined, deflated.
 
 A stream refining lod(n1) to lod(n2) is a sequence of frames; each frame is
 
     uint32 little-endian length L, then L bytes of zlib (RFC 1950 "deflate") data
-    holding one msgpack map (format "qem-splits", version 1)
+    holding one msgpack map (format "qem-splits", version 2)
 
 so a browser decodes it with DecompressionStream("deflate"). Positions live on a grid of
 2^bits - 1 steps per axis over the box of every position the progressive mesh uses
-(``grid`` = [origin xyz, step xyz]); the client keeps its mesh as grid integers. Each
-split codes the new position of s and the position of t as differences from s's position
-just before the split. Integer arrays are stored as byte planes (all low bytes, then all
-next bytes...) so that deflate sees the long runs of zero high bytes. docs/formats.md
-gives every field.
+(``grid`` = [origin xyz, step xyz]); the client keeps its mesh as grid integers. Encoder
+and decoder keep the connectivity of the level being refined (per-vertex corner lists),
+so each split codes its new faces' third corners as indices into the split vertex's
+neighbours, its relabelled faces as a mask over the split vertex's corners XOR the fan
+its new faces predict, and its positions as the edge's midpoint against s's old position
+and the edge's span against a prediction from the two rings
+(``_kernels/stream_coding.py``). Integer arrays are stored as byte planes (all low bytes,
+then all next bytes...) so that deflate sees the long runs of zero high bytes.
+docs/formats.md gives every field.
 """
 
 from __future__ import annotations

@@ -343,3 +343,26 @@ def test_a_deflate_bomb_is_refused_without_inflating_it_all():
     decoder = SplitStreamDecoder(np.zeros((4, 3), np.int64), np.array([[0, 1, 2], [0, 2, 3]]))
     with pytest.raises(qem_core.CorruptFileError, match="inflates beyond"):
         decoder.feed(bomb)
+
+
+def test_a_third_corner_that_is_no_neighbour_of_s_is_escaped():
+    """Two separate triangles; the split of 0 makes a face (0, 6, 4) bridging them: 4 is
+    not a neighbour of 0, so its third corner is escaped to a back-distance."""
+    from qem_core.progressive import ProgressiveMesh
+
+    pm = ProgressiveMesh(
+        base_vertices=np.array(
+            [[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [3, 0, 0], [4, 0, 0], [3, 1, 0]]
+        ),
+        split_vertex=np.array([0], np.int32),
+        split_positions=np.array([[[0.0, 0, 0.5], [2, 0, 1]]]),
+        face_corners=np.array([[0, 1, 2], [3, 4, 5], [0, 6, 4]], np.int32),
+        level_faces=np.array([2, 3]),
+        relabel_offsets=np.array([0, 1]),
+        relabel_faces=np.array([0], np.int32),
+        split_cost=np.array([1.0]),
+    )
+    (frame,) = encode_split_frames(pm, pm.n_base, pm.n_full)
+    body = msgpack.unpackb(zlib.decompress(frame[4:]))
+    assert body["third_corners"] == b"\xff" and body["n_backs"] == 1
+    _check_decoded(pm, _decode(pm, pm.n_base, pm.n_full), pm.n_full)

@@ -101,8 +101,10 @@ def _write_level(pm: qem_core.ProgressiveMesh, n: int, output: str, fmt: str) ->
     """Extract lod(n), write it; returns what was written."""
     if n < 1:
         raise CliError(f"-n {n}: the vertex count must be at least 1", EXIT_USAGE)
-    vertices, faces = pm.lod(n)
-    content = qem_core.encode_mesh(vertices, faces, fmt)
+    level = pm.lod_mesh(n)  # with the appearance attributes, if any
+    vertices, faces = level.vertices, level.faces
+    content = qem_core.encode_mesh(vertices, faces, fmt, level.vertex_attributes,
+                                   level.texture, level.corner_uvs)
     write_atomically(output, content)
     return {
         "path": output,

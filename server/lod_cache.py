@@ -83,15 +83,13 @@ class LodCache:
                 self._lods.move_to_end(key)
                 return found
         pm = self.progressive_mesh(record)
-        vertices, faces = pm.lod(n_vertices)
-        if format == "msgpack":
-            # uint16 positions on the split stream's grid: 6 bytes a vertex, and the very
-            # integers the stream's deltas refer to, so a viewer refines it exactly.
-            content = codecs.encode_mesh(
-                vertices, faces, format, quantize_bits=16, grid_box=pm.position_bounds
-            )
-        else:
-            content = codecs.encode_mesh(vertices, faces, format)
+        level = pm.lod_mesh(n_vertices)  # with the appearance attributes, if any
+        vertices, faces = level.vertices, level.faces
+        # uint16 msgpack positions on the split stream's grid: 6 bytes a vertex, and the
+        # very integers the stream's deltas refer to, so a viewer refines it exactly.
+        grid = {"quantize_bits": 16, "grid_box": pm.position_bounds} if format == "msgpack" else {}
+        content = codecs.encode_mesh(vertices, faces, format, level.vertex_attributes,
+                                     level.texture, level.corner_uvs, **grid)
         encoded = EncodedLod(
             content=content,
             format=format,

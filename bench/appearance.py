@@ -938,11 +938,74 @@ def _attribute_verdict(rows: Sequence[AppearanceRow], fractions: Sequence[float]
     return lines
 
 
+def _summary_lines(parts: dict[str, Any]) -> list[str]:
+    """The issue's three targets, checked on the stored rows of default qem-lod (texture,
+    colour) and of qem-lod[preserve_volume=True] (volume)."""
+    lines = ["## Issue 4 targets", ""]
+    texture = parts.get("texture")
+    if texture:
+        rows = [r for r in _rows(texture["mesh"]) if r.tool == "qem-lod" and r.ok]
+        compared = [r for r in rows if r.symmetric_ratio is not None]
+        shown = "; ".join(
+            f"{r.fraction:g} ({r.vertices} V): fwd {format_ratio(r.forward_ratio)}, "
+            f"sym {format_ratio(r.symmetric_ratio)}"
+            for r in compared
+        )
+        met = bool(compared) and all(
+            r.symmetric_ratio <= 1 and (r.forward_ratio or 0) <= 1 for r in compared
+        )
+        lines.append(
+            "- Texture error <= best peer at the same vertex counts (default qem-lod, "
+            f"ratio to the best peer): {shown or 'no qem-lod rows'}: "
+            f"{'met' if met else 'not met'}."
+        )
+    color = parts.get("color")
+    if color:
+        rows = [
+            r
+            for r in _rows(color["mesh"])
+            if r.tool == "qem-lod" and r.ok and r.fraction == 0.1 and r.symmetric_ratio
+        ]
+        shown = "; ".join(
+            f"{r.vertices} V: fwd {format_ratio(r.forward_ratio)}, sym "
+            f"{format_ratio(r.symmetric_ratio)} ({r.best_peer})"
+            for r in rows
+        )
+        met = bool(rows) and all(
+            r.symmetric_ratio <= 1 and (r.forward_ratio or 0) <= 1 for r in rows
+        )
+        lines.append(
+            "- Colour RMS at 10 % <= best peer that keeps colours (default qem-lod): "
+            f"{shown or 'no qem-lod rows'}: {'met' if met else 'not met'}."
+        )
+    volume = parts.get("volume")
+    if volume:
+        for mesh in volume["meshes"]:
+            rows = [r for r in _rows(mesh) if r.kind == "qem" and r.tool != "qem-lod" and r.ok]
+            for r in rows:
+                met = (
+                    r.volume_change is not None
+                    and r.volume_change <= VOLUME_TOLERANCE
+                    and r.rms_ratio_to_default is not None
+                    and r.rms_ratio_to_default <= VOLUME_RMS_LIMIT
+                )
+                lines.append(
+                    f"- Volume on {mesh['mesh']} at {r.fraction:g} ({r.vertices} V), "
+                    f"`{r.tool}`: abs(dV)/V {format_sci(r.volume_change)} (<= "
+                    f"{VOLUME_TOLERANCE:g}), RMS {format_ratio(r.rms_ratio_to_default)} x "
+                    f"default (<= {VOLUME_RMS_LIMIT:g}): {'met' if met else 'not met'}."
+                )
+            if not rows:
+                lines.append(f"- Volume on {mesh['mesh']}: no preserve_volume row.")
+    return [*lines, ""] if len(lines) > 2 else []
+
+
 def write_report(path: Path, results: dict[str, Any]) -> None:
     """appearance.md from the JSON results (every part stored)."""
     lines = ["# Appearance attributes and volume preservation: qem-lod and peers (issue 4)", ""]
     lines += [*machine_header_lines(), ""]
     parts = results.get("parts", {})
+    lines += _summary_lines(parts)
     for part in PARTS:
         entry = parts.get(part)
         if not entry:
@@ -1091,6 +1154,11 @@ def _parse_args(argv: Sequence[str] | None):
         help="qem-lod variant of the volume part; replaces 'default' and 'preserve_volume=true'",
     )
     parser.add_argument("--no-qem", action="store_true", help="peers only")
+    parser.add_argument(
+        "--report-only",
+        action="store_true",
+        help="rewrite appearance.md from appearance.json, measure nothing",
+    )
     args = parser.parse_args(argv)
 
     def variants(texts: Sequence[str], fallback):
@@ -1122,6 +1190,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if qem_note:
         progress(f"qem-lod attributes: {qem_note}")
     json_path = args.out_dir / "appearance.json"
+    if args.report_only:
+        write_report(args.out_dir / "appearance.md", read_json(json_path))
+        return 0
     for part in args.parts:
         record = {
             "measured_at": now(),

@@ -13,6 +13,22 @@ import numba
 import numpy as np
 
 
+def _corner_of(faces, f, v):
+    """Which corner (0, 1, 2) of face f is vertex v (v must be one)."""
+    return 0 if faces[f, 0] == v else (1 if faces[f, 1] == v else 2)
+
+
+corner_of = numba.njit(cache=True, inline="always")(_corner_of)
+
+
+def _has_corner(faces, f, v):
+    """Is v a corner of face f?"""
+    return faces[f, 0] == v or faces[f, 1] == v or faces[f, 2] == v
+
+
+has_corner = numba.njit(cache=True, inline="always")(_has_corner)
+
+
 class FaceLists(NamedTuple):
     start: np.ndarray  # (n,) int64
     count: np.ndarray  # (n,) int32

@@ -42,8 +42,9 @@ them costs no reference counting)::
 import numba
 import numpy as np
 
+from .adjacency import corner_of, has_corner
 from .heap import cost_key, pair
-from .placement import edge_cost, minimise_near, place
+from .placement import contraction_quadric, edge_cost, minimise_near, place, solve3
 from .quadrics import QUADRIC_SIZE, area_weight, evaluate
 
 SETTING_VOLUME = 0
@@ -159,13 +160,6 @@ def _best_attributes(row, m, px, py, pz, fallback, bounds, out):
 best_attributes = numba.njit(cache=True, inline="always")(_best_attributes)
 
 
-def _corner_of(faces, f, v):
-    return 0 if faces[f, 0] == v else (1 if faces[f, 1] == v else 2)
-
-
-corner_of = numba.njit(cache=True, inline="always")(_corner_of)
-
-
 def _find_root(members, i):
     while members[i, 1] != i:
         members[i, 1] = members[members[i, 1], 1]
@@ -208,7 +202,7 @@ def _gather_groups(faces, face_alive, start, count, pool, a, b, look):
         f = pool[s + i]
         if not face_alive[f]:
             continue
-        if faces[f, 0] != b and faces[f, 1] != b and faces[f, 2] != b:
+        if not has_corner(faces, f, b):
             continue
         ra = find_root(members, wedge_slot[face_wedges[f, corner_of(faces, f, a)]])
         rb = find_root(members, wedge_slot[face_wedges[f, corner_of(faces, f, b)]])
@@ -244,7 +238,7 @@ def _volume_constraint(vertices, faces, face_alive, start, count, pool, a, b, ox
             f = pool[s + i]
             if not face_alive[f]:
                 continue
-            shared = faces[f, 0] == other or faces[f, 1] == other or faces[f, 2] == other
+            shared = has_corner(faces, f, other)
             if shared and v == b:
                 continue  # counted from a
             k = corner_of(faces, f, v)
@@ -280,16 +274,8 @@ def _place_keeping_volume(quadric, vertices, faces, face_alive, start, count, po
     if gg > 0.0:
         miss = h - (gx * (out[0] - mx) + gy * (out[1] - my) + gz * (out[2] - mz))
         lift = 1e-9 * (quadric[0] + quadric[3] + quadric[5]) + 1e-300
-        a00, a11, a22 = quadric[0] + lift, quadric[3] + lift, quadric[5] + lift
-        c00 = a11 * a22 - quadric[4] * quadric[4]
-        c01 = quadric[2] * quadric[4] - quadric[1] * a22
-        c02 = quadric[1] * quadric[4] - quadric[2] * a11
-        c11 = a00 * a22 - quadric[2] * quadric[2]
-        c12 = quadric[1] * quadric[2] - a00 * quadric[4]
-        c22 = a00 * a11 - quadric[1] * quadric[1]
-        dx = c00 * gx + c01 * gy + c02 * gz
-        dy = c01 * gx + c11 * gy + c12 * gz
-        dz = c02 * gx + c12 * gy + c22 * gz
+        dx, dy, dz = solve3(quadric[0] + lift, quadric[1], quadric[2], quadric[3] + lift,
+                            quadric[4], quadric[5] + lift, gx, gy, gz)
         along = gx * dx + gy * dy + gz * dz
         if not along > 0.0 or not np.isfinite(along):
             dx, dy, dz, along = gx, gy, gz, gg  # A gives no direction: go along g
@@ -315,11 +301,7 @@ def _candidate_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact,
     if wedge_quadrics.shape[0] == 0 and not volume:
         return edge_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact,
                          rank_tolerance, quadric, position)
-    for k in range(QUADRIC_SIZE):
-        quadric[k] = vertex_quadrics[a, k] + vertex_quadrics[b, k]
-    if exact and edge < edge_quadrics.shape[0]:
-        for k in range(QUADRIC_SIZE):
-            quadric[k] -= edge_quadrics[edge, k]
+    contraction_quadric(vertex_quadrics, edge_quadrics, a, b, edge, exact, quadric)
     total = look[10]
     total[:] = quadric
     if wedge_quadrics.shape[0] > 0:
@@ -354,8 +336,8 @@ def _uv_keeps_orientation(faces, face_alive, start, count, pool, a, b, look):
             f = pool[s + i]
             if not face_alive[f]:
                 continue
-            if faces[f, 0] == other or faces[f, 1] == other or faces[f, 2] == other:
-                continue
+            if has_corner(faces, f, other):
+                continue  # dies with the contraction
             k = corner_of(faces, f, v)
             w0, w1, w2 = face_wedges[f, k], face_wedges[f, (k + 1) % 3], face_wedges[f, (k + 2) % 3]
             u1, v1 = wedge_values[w1, uv], wedge_values[w1, uv + 1]
@@ -428,8 +410,8 @@ def _merge_wedges(faces, face_alive, start, count, pool, a, b, look, log, log_va
             f = pool[s + i]
             if not face_alive[f]:
                 continue
-            if faces[f, 0] == other or faces[f, 1] == other or faces[f, 2] == other:
-                continue
+            if has_corner(faces, f, other):
+                continue  # dies with the contraction
             k = corner_of(faces, f, v)
             w = face_wedges[f, k]
             survivor = members[members[wedge_slot[w], 1], 0]

@@ -40,7 +40,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from .adjacency import compact
+from .adjacency import compact, corner_of
 from .appearance import (
     SETTING_UV_OFFSET,
     candidate_cost,
@@ -219,7 +219,7 @@ def _update_vertex_edges(vertices, vertex_quadrics, edge_quadrics, faces, face_a
         f = pool[s + i]
         if not face_alive[f]:
             continue
-        corner = 0 if faces[f, 0] == v else (1 if faces[f, 1] == v else 2)
+        corner = corner_of(faces, f, v)
         # The two sides at v: v -> next corner is side ``corner``, previous -> v the other.
         for step in range(1, 3):
             x = faces[f, (corner + step) % 3]
@@ -258,7 +258,7 @@ def _merge_edges(faces, face_alive, face_edge, face_quadrics, edge_quadrics, sta
         f = pool[s + i]
         if not face_alive[f]:
             continue
-        corner = 0 if faces[f, 0] == b else (1 if faces[f, 1] == b else 2)
+        corner = corner_of(faces, f, b)
         for step in range(1, 3):
             x = faces[f, (corner + step) % 3]
             if x == a or near[x, NEAR_TAG_A] != g:

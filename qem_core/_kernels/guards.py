@@ -12,6 +12,7 @@ uses all of its vertices.
 import numba
 import numpy as np
 
+from .adjacency import has_corner
 from .link import NEAR_COUNT_A
 
 
@@ -59,7 +60,7 @@ def _faces_keep_orientation(vertices, faces, face_alive, face_normals, start, co
             f = pool[s + i]
             if not face_alive[f]:
                 continue
-            if faces[f, 0] == other or faces[f, 1] == other or faces[f, 2] == other:
+            if has_corner(faces, f, other):
                 continue  # dies with the contraction
             if not turn_ok(vertices, faces, face_normals, f, v, px, py, pz, cos_step):
                 return False

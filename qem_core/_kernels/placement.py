@@ -163,18 +163,26 @@ def _place(quadric, vertices, a, b, rank_tolerance, out):
 place = numba.njit(cache=True, inline="always")(_place)
 
 
-def _edge_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact, rank_tolerance,
-               quadric, position):
-    """Cost and best position of contracting edge (a, b); quadric (10,) receives Q_c.
-
-    The cost does not depend on the order of a and b (sums commute; the candidates of
-    ``place`` are the same), so the heap may compute it from either end. Candidates past
-    the edges (pairs, which share no face and so no plane) subtract nothing."""
+def _contraction_quadric(vertex_quadrics, edge_quadrics, a, b, edge, exact, quadric):
+    """quadric (10,) <- Q_a + Q_b, minus Q_ab in exact mode. Candidates past the edges
+    (pairs, which share no face and so no plane) subtract nothing."""
     for k in range(QUADRIC_SIZE):
         quadric[k] = vertex_quadrics[a, k] + vertex_quadrics[b, k]
     if exact and edge < edge_quadrics.shape[0]:
         for k in range(QUADRIC_SIZE):
             quadric[k] -= edge_quadrics[edge, k]
+
+
+contraction_quadric = numba.njit(cache=True, inline="always")(_contraction_quadric)
+
+
+def _edge_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact, rank_tolerance,
+               quadric, position):
+    """Cost and best position of contracting edge (a, b); quadric (10,) receives Q_c.
+
+    The cost does not depend on the order of a and b (sums commute; the candidates of
+    ``place`` are the same), so the heap may compute it from either end."""
+    contraction_quadric(vertex_quadrics, edge_quadrics, a, b, edge, exact, quadric)
     return place(quadric, vertices, a, b, rank_tolerance, position)
 
 

@@ -15,7 +15,7 @@ Appearance attributes (built with `qem_core.build_mesh`) live on wedges (attribu
 numbered like the vertices in the order refinement introduces them. Split k also
 restores the values of the wedges contraction J-1-k kept, brings back the wedges it
 retired, and points the corners that named them back at them; ``lod_mesh(n)`` replays
-both sides.
+both sides, and ``splits(n1, n2)`` carries both (``VertexSplits.wedges``).
 """
 
 from __future__ import annotations
@@ -30,9 +30,54 @@ from ._kernels.refine_wedges import apply_wedge_run
 from .attributes import AttributeLayout, corner_values_to_mesh
 from .errors import CorruptFileError, InvalidOptionsError
 from .mesh import Mesh
+from .split_checks import (
+    WEDGE_RUN_ARRAYS,
+    check_splits,
+    check_wedge_arrays,
+    check_wedge_splits,
+)
 
-__all__ = ["ProgressiveMesh", "VertexSplits", "apply_splits", "check_splits",
-           "check_wedge_arrays"]
+__all__ = [
+    "ProgressiveMesh",
+    "VertexSplits",
+    "WedgeSplits",
+    "apply_splits",
+    "apply_wedge_splits",
+    "check_splits",
+    "check_wedge_arrays",
+    "check_wedge_splits",
+]
+
+
+class WedgeSplits(NamedTuple):
+    """The wedge side of the splits refining lod(n_from) to lod(n_to).
+
+    wedges_from : wedges of lod(n_from); the run's new wedges are numbered on from it.
+    new_face_wedges : (F_new, 3) int32, the wedge of each corner of the new faces as of
+        their birth (rows as in ``VertexSplits.new_faces``).
+    update_offsets, new_offsets, relabel_offsets : (K + 1,) int64 runs per split,
+        starting at 0.
+    update_ids (U,) int32, update_values (U, k) float32: wedges whose values a split
+        sets (scaled values, see ``AttributeLayout.scales``).
+    new_values : (N, k) float32, the values of the new wedges.
+    relabel_corners (R,) int64 (face * 3 + corner, global face numbers), relabel_to (R,)
+        int32: corners a split points at another wedge.
+    """
+
+    wedges_from: int
+    new_face_wedges: np.ndarray
+    update_offsets: np.ndarray
+    update_ids: np.ndarray
+    update_values: np.ndarray
+    new_offsets: np.ndarray
+    new_values: np.ndarray
+    relabel_offsets: np.ndarray
+    relabel_corners: np.ndarray
+    relabel_to: np.ndarray
+
+    @property
+    def wedges_to(self) -> int:
+        return self.wedges_from + int(self.new_offsets[-1])
 
 
 class VertexSplits(NamedTuple):
@@ -44,6 +89,7 @@ class VertexSplits(NamedTuple):
     new_face_counts : (K,) int32, how many of new_faces each split appends.
     relabel_offsets : (K + 1,) int64 into relabel_faces (starts at 0).
     relabel_faces : (R,) int32 global face indices whose corner s_k becomes t.
+    wedges : the appearance side (`WedgeSplits`), None for a mesh without attributes.
     """
 
     n_from: int
@@ -55,18 +101,14 @@ class VertexSplits(NamedTuple):
     new_face_counts: np.ndarray
     relabel_offsets: np.ndarray
     relabel_faces: np.ndarray
+    wedges: WedgeSplits | None = None
 
 
 # The wedge arrays of a progressive mesh with attributes (all absent without): the
 # values of the base wedges, the wedge of every face corner as of the face's birth, and
 # per split (offsets (K + 1,) int64 into each run) the wedges it updates, those it
 # introduces, and the corners (face * 3 + corner) it points at a new wedge.
-WEDGE_ARRAYS = (
-    "base_wedge_values", "face_wedge_corners",
-    "wedge_update_offsets", "wedge_update_ids", "wedge_update_values",
-    "wedge_new_offsets", "wedge_new_values",
-    "wedge_relabel_offsets", "wedge_relabel_corners", "wedge_relabel_to",
-)
+WEDGE_ARRAYS = ("base_wedge_values", "face_wedge_corners", *WEDGE_RUN_ARRAYS)
 
 
 class ProgressiveMesh:
@@ -173,8 +215,13 @@ class ProgressiveMesh:
         vertices[: self.n_base] = self.base_vertices
         faces = self.face_corners[: self.level_faces[k]].copy()
         apply_split_run(
-            vertices, faces, self.split_vertex[:k], self.split_positions[:k],
-            self.relabel_offsets[: k + 1], self.relabel_faces, self.n_base,
+            vertices,
+            faces,
+            self.split_vertex[:k],
+            self.split_positions[:k],
+            self.relabel_offsets[: k + 1],
+            self.relabel_faces,
+            self.n_base,
         )
         return vertices, faces
 
@@ -188,6 +235,22 @@ class ProgressiveMesh:
         k1, k2 = n_from - self.n_base, n_to - self.n_base
         r1, r2 = self.relabel_offsets[k1], self.relabel_offsets[k2]
         f1, f2 = self.level_faces[k1], self.level_faces[k2]
+        wedges = None
+        if self.wedge_arrays:
+            w = self.wedge_arrays
+
+            def run(name: str, *arrays: str):
+                offsets = w[name]
+                a, b = offsets[k1], offsets[k2]
+                return (offsets[k1 : k2 + 1] - a, *(w[array][a:b] for array in arrays))
+
+            wedges = WedgeSplits(
+                int(w["base_wedge_values"].shape[0] + w["wedge_new_offsets"][k1]),
+                w["face_wedge_corners"][f1:f2],
+                *run("wedge_update_offsets", "wedge_update_ids", "wedge_update_values"),
+                *run("wedge_new_offsets", "wedge_new_values"),
+                *run("wedge_relabel_offsets", "wedge_relabel_corners", "wedge_relabel_to"),
+            )
         return VertexSplits(
             n_from=n_from,
             n_to=n_to,
@@ -198,6 +261,7 @@ class ProgressiveMesh:
             new_face_counts=np.diff(self.level_faces[k1 : k2 + 1]).astype(np.int32),
             relabel_offsets=self.relabel_offsets[k1 : k2 + 1] - r1,
             relabel_faces=self.relabel_faces[r1:r2],
+            wedges=wedges,
         )
 
     # -- attributes ----------------------------------------------------------------
@@ -212,33 +276,37 @@ class ProgressiveMesh:
         colours and normals, per-corner UVs when the input had them (so seams stay
         sharp), and the input's texture. Positions and faces are those of ``lod(n)``."""
         vertices, faces = self.lod(n)
+        if self.attribute_layout is None:
+            return self.as_mesh(vertices, faces)
+        return self.as_mesh(vertices, faces, *self.wedge_level(vertices.shape[0]))
+
+    def as_mesh(
+        self,
+        vertices: np.ndarray,
+        faces: np.ndarray,
+        face_wedges: np.ndarray | None = None,
+        wedge_values: np.ndarray | None = None,
+    ) -> Mesh:
+        """A level held as arrays (``lod`` and ``wedge_level``, or refined by
+        ``apply_splits`` and ``apply_wedge_splits``) as a `Mesh` with this mesh's
+        attributes, texture and name, as ``lod_mesh`` gives it."""
         layout = self.attribute_layout
         name = self.metadata.get("name")
-        if layout is None:
+        if layout is None or face_wedges is None or wedge_values is None:
             return Mesh(vertices=vertices, faces=faces, texture=self.texture, name=name)
-        face_wedges, values = self.wedge_level(vertices.shape[0])
-        mesh = corner_values_to_mesh(vertices, faces, face_wedges, values, layout)
+        mesh = corner_values_to_mesh(vertices, faces, face_wedges, wedge_values, layout)
         mesh.texture = self.texture
         mesh.name = name
         return mesh
 
     def wedge_level(self, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """(face_wedges (F, 3) int32, wedge values (W, k) float32, as weighted) of lod(n)."""
+        """(face_wedges (F, 3) int32, wedge values (W, k) float32, as weighted) of lod(n):
+        the base wedges refined by ``splits(n_base, n)``."""
         w = self.wedge_arrays
-        k = self.clamp(n) - self.n_base
-        n_base_wedges = w["base_wedge_values"].shape[0]
-        new = w["wedge_new_offsets"]
-        values = np.zeros((n_base_wedges + int(new[k]), w["base_wedge_values"].shape[1]),
-                          np.float32)
-        values[:n_base_wedges] = w["base_wedge_values"]
-        face_wedges = w["face_wedge_corners"][: self.level_faces[k]].copy()
-        apply_wedge_run(
-            values, face_wedges, w["wedge_update_offsets"][: k + 1], w["wedge_update_ids"],
-            w["wedge_update_values"], new[: k + 1], w["wedge_new_values"],
-            w["wedge_relabel_offsets"][: k + 1], w["wedge_relabel_corners"],
-            w["wedge_relabel_to"], n_base_wedges,
+        base_faces = w["face_wedge_corners"][: self.level_faces[0]]
+        return apply_wedge_splits(
+            base_faces, w["base_wedge_values"], self.splits(self.n_base, n), check=False
         )
-        return face_wedges, values
 
     # -- files ---------------------------------------------------------------------
     def save(self, path) -> None:
@@ -262,8 +330,15 @@ def apply_splits(
     The inputs are not modified. Raises InvalidOptionsError when the mesh is not at the
     level the splits start from.
     """
-    check_splits(splits.n_from, splits.faces_from, splits.split_vertex, splits.new_faces,
-                 splits.new_face_counts, splits.relabel_offsets, splits.relabel_faces)
+    check_splits(
+        splits.n_from,
+        splits.faces_from,
+        splits.split_vertex,
+        splits.new_faces,
+        splits.new_face_counts,
+        splits.relabel_offsets,
+        splits.relabel_faces,
+    )
     if vertices.shape[0] != splits.n_from or faces.shape[0] != splits.faces_from:
         raise InvalidOptionsError(
             f"these splits start from {splits.n_from} vertices and {splits.faces_from} "
@@ -273,105 +348,60 @@ def apply_splits(
     out_vertices[: splits.n_from] = vertices
     out_faces = np.concatenate([faces.astype(np.int32, copy=False), splits.new_faces])
     misses = apply_split_run(
-        out_vertices, out_faces, splits.split_vertex, splits.split_positions,
-        splits.relabel_offsets, splits.relabel_faces, splits.n_from,
+        out_vertices,
+        out_faces,
+        splits.split_vertex,
+        splits.split_positions,
+        splits.relabel_offsets,
+        splits.relabel_faces,
+        splits.n_from,
     )
     if misses:
         raise InvalidOptionsError(f"{misses} face corners did not match the splits")
     return out_vertices, out_faces
 
 
-def check_splits(
-    n_from: int,
-    faces_from: int,
-    split_vertex: np.ndarray,
-    new_faces: np.ndarray,
-    new_face_counts: np.ndarray,
-    relabel_offsets: np.ndarray,
-    relabel_faces: np.ndarray,
-) -> None:
-    """Refuse split data that would index outside the mesh it refines.
+def apply_wedge_splits(
+    face_wedges: np.ndarray, wedge_values: np.ndarray, splits: VertexSplits, check: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
+    """Refine the wedges of lod(n_from), ``wedge_level(n_from)`` = (face_wedges (F, 3),
+    wedge_values (W, k)), by ``splits``; returns those of lod(n_to). With
+    `apply_splits` on the positions and faces this gives lod(n_to) exactly
+    (``ProgressiveMesh.as_mesh`` makes the `Mesh`).
 
-    Every index the refinement kernel follows is checked against the level it is used
-    at, so a damaged file or stream frame raises CorruptFileError instead of writing out
-    of bounds. Vectorised: O(size of the data).
+    The inputs are not modified. Raises InvalidOptionsError when the splits carry no
+    wedges or the wedges are not at the level they start from, CorruptFileError when
+    the wedge records index outside their levels (``check=False`` skips that for
+    records known good).
     """
-    k = split_vertex.shape[0]
-
-    def fail(what: str) -> None:
-        raise CorruptFileError(f"inconsistent vertex splits: {what}")
-
-    if new_face_counts.shape != (k,) or relabel_offsets.shape != (k + 1,):
-        fail("array lengths do not match the number of splits")
-    if new_faces.ndim != 2 or new_faces.shape[1] != 3:
-        fail(f"faces have shape {new_faces.shape}, expected (F, 3)")
-    if np.any(new_face_counts < 0) or int(new_face_counts.sum()) != new_faces.shape[0]:
-        fail("new face counts do not add up to the new faces")
-    if relabel_offsets[0] != 0 or relabel_offsets[-1] != relabel_faces.shape[0]:
-        fail("relabel offsets do not cover the relabel list")
-    if np.any(np.diff(relabel_offsets) < 0):
-        fail("relabel offsets decrease")
-    levels = n_from + np.arange(k)
-    if np.any(split_vertex < 0) or np.any(split_vertex >= levels):
-        fail("a split names a vertex that does not exist yet")
-    # A face born at split k may use vertices up to n_from + k.
-    born_at = np.repeat(np.arange(k), new_face_counts)
-    if new_faces.size and (
-        np.any(new_faces < 0) or np.any(new_faces > (n_from + born_at)[:, None])
+    wedges = splits.wedges
+    if wedges is None:
+        raise InvalidOptionsError("these splits carry no wedges (a mesh without attributes)")
+    if (
+        face_wedges.shape != (splits.faces_from, 3)
+        or wedge_values.ndim != 2
+        or (wedge_values.shape[0] != wedges.wedges_from)
     ):
-        fail("a new face uses a vertex that does not exist at its level")
-    faces_before = faces_from + np.concatenate([[0], np.cumsum(new_face_counts)[:-1]])
-    relabel_at = np.repeat(np.arange(k), np.diff(relabel_offsets))
-    if relabel_faces.size and (
-        np.any(relabel_faces < 0) or np.any(relabel_faces >= faces_before[relabel_at])
-    ):
-        fail("a split relabels a face that does not exist yet")
-
-
-def check_wedge_arrays(arrays: dict, level_faces: np.ndarray, layout: object) -> None:
-    """Refuse wedge arrays (see WEDGE_ARRAYS) that would index outside the level they
-    are used at, as `check_splits` does for the vertex side. O(size of the data)."""
-
-    def fail(what: str) -> None:
-        raise CorruptFileError(f"inconsistent wedge arrays: {what}")
-
-    k = level_faces.shape[0] - 1
-    base = arrays["base_wedge_values"]
-    try:
-        width = AttributeLayout.from_dict(layout).width
-    except (TypeError, KeyError, ValueError):
-        fail("the metadata does not describe the attributes")
-    if base.ndim != 2 or base.shape[1] != width:
-        fail(f"wedge values have shape {base.shape}, expected (W, {width})")
-    for name in ("wedge_update_offsets", "wedge_new_offsets", "wedge_relabel_offsets"):
-        offsets = arrays[name]
-        if offsets.shape != (k + 1,) or np.any(np.diff(offsets) < 0):
-            fail(f"{name} is not one non-decreasing offset per split")
-        if offsets[0] != 0:
-            fail(f"{name} does not start at 0")
-    updates, new = arrays["wedge_update_offsets"], arrays["wedge_new_offsets"]
-    relabels = arrays["wedge_relabel_offsets"]
-    if (arrays["wedge_update_ids"].shape != (updates[-1],)
-            or arrays["wedge_update_values"].shape != (updates[-1], width)
-            or arrays["wedge_new_values"].shape != (new[-1], width)
-            or arrays["wedge_relabel_corners"].shape != (relabels[-1],)
-            or arrays["wedge_relabel_to"].shape != (relabels[-1],)):
-        fail("array lengths do not match their offsets")
-    corners = arrays["face_wedge_corners"]
-    if corners.shape != (level_faces[-1], 3):
-        fail("there is not one wedge per face corner")
-    # Wedges that exist once split i is applied (index i + 1; 0 for the base).
-    wedges_at = base.shape[0] + new
-    born_at = np.repeat(np.arange(k + 1), np.diff(np.concatenate([[0], level_faces])))
-    if corners.size and (np.any(corners < 0)
-                         or np.any(corners >= wedges_at[born_at][:, None])):
-        fail("a face corner names a wedge that does not exist at its level")
-    update_at = np.repeat(np.arange(k), np.diff(updates))
-    ids = arrays["wedge_update_ids"]
-    if ids.size and (np.any(ids < 0) or np.any(ids >= wedges_at[update_at])):
-        fail("a split updates a wedge that does not exist yet")
-    relabel_at = np.repeat(np.arange(k), np.diff(relabels))
-    to, corner = arrays["wedge_relabel_to"], arrays["wedge_relabel_corners"]
-    if to.size and (np.any(to < 0) or np.any(to >= wedges_at[relabel_at + 1])
-                    or np.any(corner < 0) or np.any(corner >= 3 * level_faces[relabel_at + 1])):
-        fail("a split points a corner outside its level")
+        raise InvalidOptionsError(
+            f"these splits start from {splits.faces_from} faces and {wedges.wedges_from} "
+            f"wedges; got face wedges {face_wedges.shape} and values {wedge_values.shape}"
+        )
+    if check:
+        check_wedge_splits(splits, wedge_values.shape[1])
+    values = np.zeros((wedges.wedges_to, wedge_values.shape[1]), np.float32)
+    values[: wedges.wedges_from] = wedge_values
+    out = np.concatenate([face_wedges.astype(np.int32, copy=False), wedges.new_face_wedges])
+    apply_wedge_run(
+        values,
+        out,
+        wedges.update_offsets,
+        wedges.update_ids,
+        wedges.update_values,
+        wedges.new_offsets,
+        wedges.new_values,
+        wedges.relabel_offsets,
+        wedges.relabel_corners,
+        wedges.relabel_to,
+        wedges.wedges_from,
+    )
+    return out, values

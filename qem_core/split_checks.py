@@ -1,0 +1,167 @@
+"""Checks of vertex-split data against the levels it is used at: every index the
+refinement kernels follow (``_kernels/refine.py``, ``_kernels/refine_wedges.py``) is
+checked, vectorised, so that a damaged file or stream raises CorruptFileError instead of
+writing out of bounds. ``progressive.py`` re-exports them.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, NoReturn
+
+import numpy as np
+
+from .attributes import AttributeLayout
+from .errors import CorruptFileError
+
+if TYPE_CHECKING:
+    from .progressive import VertexSplits
+
+__all__ = ["WEDGE_RUN_ARRAYS", "check_splits", "check_wedge_arrays", "check_wedge_splits"]
+
+# The per-split runs of a progressive mesh's wedge arrays (progressive.WEDGE_ARRAYS
+# puts the base values and the face corners' wedges before them).
+WEDGE_RUN_ARRAYS = (
+    "wedge_update_offsets", "wedge_update_ids", "wedge_update_values",
+    "wedge_new_offsets", "wedge_new_values",
+    "wedge_relabel_offsets", "wedge_relabel_corners", "wedge_relabel_to",
+)  # fmt: skip
+
+
+def check_splits(
+    n_from: int,
+    faces_from: int,
+    split_vertex: np.ndarray,
+    new_faces: np.ndarray,
+    new_face_counts: np.ndarray,
+    relabel_offsets: np.ndarray,
+    relabel_faces: np.ndarray,
+) -> None:
+    """Refuse split data that would index outside the mesh it refines.
+
+    Every index the refinement kernel follows is checked against the level it is used
+    at, so a damaged file or stream frame raises CorruptFileError instead of writing out
+    of bounds. Vectorised: O(size of the data).
+    """
+    k = split_vertex.shape[0]
+
+    def fail(what: str) -> None:
+        raise CorruptFileError(f"inconsistent vertex splits: {what}")
+
+    if new_face_counts.shape != (k,) or relabel_offsets.shape != (k + 1,):
+        fail("array lengths do not match the number of splits")
+    if new_faces.ndim != 2 or new_faces.shape[1] != 3:
+        fail(f"faces have shape {new_faces.shape}, expected (F, 3)")
+    if np.any(new_face_counts < 0) or int(new_face_counts.sum()) != new_faces.shape[0]:
+        fail("new face counts do not add up to the new faces")
+    if relabel_offsets[0] != 0 or relabel_offsets[-1] != relabel_faces.shape[0]:
+        fail("relabel offsets do not cover the relabel list")
+    if np.any(np.diff(relabel_offsets) < 0):
+        fail("relabel offsets decrease")
+    levels = n_from + np.arange(k)
+    if np.any(split_vertex < 0) or np.any(split_vertex >= levels):
+        fail("a split names a vertex that does not exist yet")
+    # A face born at split k may use vertices up to n_from + k.
+    born_at = np.repeat(np.arange(k), new_face_counts)
+    if new_faces.size and (
+        np.any(new_faces < 0) or np.any(new_faces > (n_from + born_at)[:, None])
+    ):
+        fail("a new face uses a vertex that does not exist at its level")
+    faces_before = faces_from + np.concatenate([[0], np.cumsum(new_face_counts)[:-1]])
+    relabel_at = np.repeat(np.arange(k), np.diff(relabel_offsets))
+    if relabel_faces.size and (
+        np.any(relabel_faces < 0) or np.any(relabel_faces >= faces_before[relabel_at])
+    ):
+        fail("a split relabels a face that does not exist yet")
+
+
+def check_wedge_arrays(arrays: dict, level_faces: np.ndarray, layout: object) -> None:
+    """Refuse wedge arrays (see WEDGE_ARRAYS) that would index outside the level they
+    are used at, as `check_splits` does for the vertex side. O(size of the data)."""
+    k = level_faces.shape[0] - 1
+    base = arrays["base_wedge_values"]
+    try:
+        width = AttributeLayout.from_dict(layout).width
+    except (TypeError, KeyError, ValueError):
+        _wedge_failure("the metadata does not describe the attributes")
+    if base.ndim != 2 or base.shape[1] != width:
+        _wedge_failure(f"wedge values have shape {base.shape}, expected (W, {width})")
+    # Faces of the base are used from level 0, those born by split i from level i + 1.
+    born_at = np.repeat(np.arange(k + 1), np.diff(np.concatenate([[0], level_faces])))
+    _check_wedge_records(
+        width,
+        base.shape[0],
+        level_faces,
+        arrays["face_wedge_corners"],
+        born_at,
+        *(arrays[name] for name in WEDGE_RUN_ARRAYS),
+    )
+
+
+def check_wedge_splits(splits: VertexSplits, width: int) -> None:
+    """`check_wedge_arrays` for the wedge run of ``splits`` (k = ``width`` columns)."""
+    wedges = splits.wedges
+    counts = splits.new_face_counts
+    level_faces = splits.faces_from + np.concatenate([[0], np.cumsum(counts)])
+    born_at = np.repeat(np.arange(1, counts.shape[0] + 1), counts)
+    _check_wedge_records(
+        width, wedges.wedges_from, level_faces, wedges.new_face_wedges, born_at, *wedges[2:]
+    )
+
+
+def _wedge_failure(what: str) -> NoReturn:
+    raise CorruptFileError(f"inconsistent wedge arrays: {what}")
+
+
+def _check_wedge_records(
+    width,
+    wedges_before,
+    level_faces,
+    corners,
+    born_at,
+    update_offsets,
+    update_ids,
+    update_values,
+    new_offsets,
+    new_values,
+    relabel_offsets,
+    relabel_corners,
+    relabel_to,
+) -> None:
+    """The checks shared by a whole progressive mesh and a run of splits: level_faces
+    (K + 1,) is the face count of each level of the run, corners (F, 3) the wedges of
+    faces used from level born_at (F,) on (an index into level_faces)."""
+    k = level_faces.shape[0] - 1
+    for name, offsets in (
+        ("update", update_offsets),
+        ("new wedge", new_offsets),
+        ("relabel", relabel_offsets),
+    ):
+        if offsets.shape != (k + 1,) or np.any(np.diff(offsets) < 0):
+            _wedge_failure(f"the {name} offsets are not one non-decreasing offset per split")
+        if offsets[0] != 0:
+            _wedge_failure(f"the {name} offsets do not start at 0")
+    if (
+        update_ids.shape != (update_offsets[-1],)
+        or update_values.shape != (update_offsets[-1], width)
+        or new_values.shape != (new_offsets[-1], width)
+        or relabel_corners.shape != (relabel_offsets[-1],)
+        or relabel_to.shape != (relabel_offsets[-1],)
+    ):
+        _wedge_failure("array lengths do not match their offsets")
+    if corners.shape != (born_at.shape[0], 3):
+        _wedge_failure("there is not one wedge per face corner")
+    # Wedges that exist at each level of the run (index i: after i splits).
+    wedges_at = wedges_before + new_offsets
+    if corners.size and (np.any(corners < 0) or np.any(corners >= wedges_at[born_at][:, None])):
+        _wedge_failure("a face corner names a wedge that does not exist at its level")
+    update_at = np.repeat(np.arange(k), np.diff(update_offsets))
+    if update_ids.size and (np.any(update_ids < 0) or np.any(update_ids >= wedges_at[update_at])):
+        _wedge_failure("a split updates a wedge that does not exist yet")
+    relabel_at = np.repeat(np.arange(k), np.diff(relabel_offsets)) + 1
+    if relabel_to.size and (
+        np.any(relabel_to < 0)
+        or np.any(relabel_to >= wedges_at[relabel_at])
+        or np.any(relabel_corners < 0)
+        or np.any(relabel_corners >= 3 * level_faces[relabel_at])
+    ):
+        _wedge_failure("a split points a corner outside its level")

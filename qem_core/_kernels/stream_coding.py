@@ -98,13 +98,19 @@ def _gather(faces, head, nxt, s, cs, nb):
             if v != s:
                 nb[m] = v
                 m += 1
-    nb[:m].sort()
-    nn = 0
-    for q in range(m):
-        if nn == 0 or nb[q] != nb[nn - 1]:
-            nb[nn] = nb[q]
-            nn += 1
-    return nc, nn
+    return nc, _distinct_sorted(nb, m)
+
+
+@numba.njit(cache=True)
+def _distinct_sorted(values, n):
+    """Sort values[:n] in place and drop repeats; returns the new length."""
+    values[:n].sort()
+    m = 0
+    for q in range(n):
+        if m == 0 or values[q] != values[m - 1]:
+            values[m] = values[q]
+            m += 1
+    return m
 
 
 @numba.njit(cache=True)
@@ -405,9 +411,11 @@ def decode_connectivity(
     quantised,
     mid,
     span,
+    born_faces,
 ):
     """Inverse of ``encode_connectivity``: advances the state (faces must have room for
-    sum(new_face_counts) more faces, head and quantised for the new vertices).
+    sum(new_face_counts) more faces, head and quantised for the new vertices). The new
+    faces as born (before later splits relabel them) go to born_faces (>= new faces, 3).
 
     Returns (status, split_vertex, relabel_counts, relabel_faces): status 0 when every
     field was consumed exactly and every index was in range, else a status code (the
@@ -484,9 +492,9 @@ def decode_connectivity(
             else:
                 return BAD_CODE, split_vertex, relabel_counts, relabel_faces[:n_relabel]
             # Written now (the state's lists get them after the relabels).
-            faces[face, 0] = corner[0]
-            faces[face, 1] = corner[1]
-            faces[face, 2] = corner[2]
+            for j in range(3):
+                faces[face, j] = corner[j]
+                born_faces[face - faces_from, j] = corner[j]
             face += 1
         _predict(faces, s, cs, nc, xl, xr, mark)
         n_bytes = (nc + 7) // 8

@@ -23,6 +23,11 @@ decodes from):
                     the indices (texture seams kept; origin bottom-left)
     texture         (optional) bin, the image bytes; texture_type its media type
     name            (optional) the mesh's name
+    wedges          (optional) the appearance as wedges on the split stream's attribute
+                    grid (a served level, so that a viewer refines it): {"grid": the
+                    grid's map, "count": W, "corner_type": "u8"/"u16"/"u32", "corners":
+                    bin of 3m values (the wedge of each face corner), "values": bin of
+                    W*k little-endian uint16 (each wedge's k grid integers)}
 
 Quantised positions are within half a grid step, (max - min) / (2^b - 1) / 2 per axis,
 of the input; float32 positions are the input rounded to float32.
@@ -37,10 +42,17 @@ import numpy as np
 
 from ..errors import InvalidOptionsError, MeshFormatError
 from ..mesh import Mesh
-from ..quantise import Grid
+from ..quantise import AttributeGrid, Grid, QuantisedWedges
 from ._images import image_media_type
 
-__all__ = ["read_msgpack", "write_msgpack", "is_msgpack_mesh", "FORMAT_NAME", "VERSION"]
+__all__ = [
+    "read_msgpack",
+    "read_msgpack_wedges",
+    "write_msgpack",
+    "is_msgpack_mesh",
+    "FORMAT_NAME",
+    "VERSION",
+]
 
 FORMAT_NAME = "qem-mesh-msgpack"
 VERSION = 1
@@ -64,10 +76,12 @@ def write_msgpack(
     quantize_bits: int | None = None,
     grid_box: tuple[np.ndarray, np.ndarray] | None = None,
     name: str | None = None,
+    wedges: QuantisedWedges | None = None,
 ) -> bytes:
     """Encode in the msgpack form; `quantize_bits` None gives float32 positions, 1..16
     gives uint16 grid positions of that many bits, over `grid_box` (low, high) when
-    given (it must hold every vertex), else over the vertices' bounding box."""
+    given (it must hold every vertex), else over the vertices' bounding box. `wedges`:
+    the level's wedges on the split stream's attribute grid."""
     n_vertices = vertices.shape[0]
     if grid_box is not None:
         low, high = (np.asarray(corner, np.float64).reshape(3) for corner in grid_box)
@@ -119,23 +133,49 @@ def write_msgpack(
         message["texture_type"] = image_media_type(texture) or "application/octet-stream"
     if name is not None:
         message["name"] = str(name)
+    if wedges is not None:
+        corner_type = _index_type(wedges.values.shape[0])
+        message["wedges"] = {
+            "grid": wedges.grid.to_dict(),
+            "count": int(wedges.values.shape[0]),
+            "corner_type": corner_type,
+            "corners": wedges.face_wedges.astype(_INDEX_TYPES[corner_type]).tobytes(),
+            "values": wedges.values.astype("<u2").tobytes(),
+        }
     return msgpack.packb(message, use_bin_type=True)
+
+
+def read_msgpack_wedges(data: bytes) -> QuantisedWedges | None:
+    """The ``wedges`` entry of a msgpack mesh (None if it has none). Raises
+    MeshFormatError naming the bad field; the mesh itself is read by `read_msgpack`."""
+    message = _message(data)
+    entry = message.get("wedges")
+    if entry is None:
+        return None
+    if not isinstance(entry, dict):
+        raise MeshFormatError("'wedges' must be a map")
+    try:
+        grid = AttributeGrid.from_dict(entry.get("grid"))
+    except (TypeError, KeyError, ValueError, AttributeError) as error:
+        raise MeshFormatError(f"'wedges' has no valid 'grid': {error}") from None
+    count = _count(entry, "count")
+    corner_type = entry.get("corner_type")
+    if corner_type not in _INDEX_TYPES:
+        raise MeshFormatError(f"'corner_type' must be one of {list(_INDEX_TYPES)}")
+    n_faces = _count(message, "face_count")
+    corners = _array(entry, "corners", _INDEX_TYPES[corner_type], 3 * n_faces)
+    if corners.size and int(corners.max()) >= count:
+        raise MeshFormatError(f"'wedges' corners name a wedge beyond its count {count}")
+    k = int(sum(grid.widths))
+    values = _array(entry, "values", "<u2", count * k).astype(np.int64).reshape(count, k)
+    if np.any(values > grid.q_max):
+        raise MeshFormatError("'wedges' values lie outside their grid")
+    return QuantisedWedges(grid, corners.astype(np.int32).reshape(-1, 3), values)
 
 
 def read_msgpack(data: bytes) -> Mesh:
     """Decode the msgpack form. Raises MeshFormatError naming the bad field."""
-    try:
-        message = msgpack.unpackb(data, raw=False, strict_map_key=True)
-    except (ValueError, TypeError, msgpack.UnpackException) as error:
-        raise MeshFormatError(f"not a valid msgpack message: {error}") from None
-    if not isinstance(message, dict) or message.get("format") != FORMAT_NAME:
-        raise MeshFormatError(f"msgpack message is not a {FORMAT_NAME!r} map")
-    version = message.get("version")
-    if version != VERSION:
-        raise MeshFormatError(
-            f"{FORMAT_NAME} version {version!r} is not supported (this reader reads "
-            f"version {VERSION}); upgrade qem-lod to read newer files"
-        )
+    message = _message(data)
     n_vertices = _count(message, "vertex_count")
     n_faces = _count(message, "face_count")
     bbox = message.get("bbox")
@@ -189,6 +229,23 @@ def read_msgpack(data: bytes) -> Mesh:
         texture=texture,
         name=name if isinstance(name, str) else None,
     )
+
+
+def _message(data: bytes) -> dict:
+    """The message's map, its format and version checked."""
+    try:
+        message = msgpack.unpackb(data, raw=False, strict_map_key=True)
+    except (ValueError, TypeError, msgpack.UnpackException) as error:
+        raise MeshFormatError(f"not a valid msgpack message: {error}") from None
+    if not isinstance(message, dict) or message.get("format") != FORMAT_NAME:
+        raise MeshFormatError(f"msgpack message is not a {FORMAT_NAME!r} map")
+    version = message.get("version")
+    if version != VERSION:
+        raise MeshFormatError(
+            f"{FORMAT_NAME} version {version!r} is not supported (this reader reads "
+            f"version {VERSION}); upgrade qem-lod to read newer files"
+        )
+    return message
 
 
 def _index_type(n_vertices: int) -> str:

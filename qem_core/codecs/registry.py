@@ -18,6 +18,7 @@ import numpy as np
 from ..errors import InvalidMeshError, InvalidOptionsError, MeshFormatError
 from ..mesh import Mesh
 from ..prepare import validate_mesh_arrays
+from ..quantise import QuantisedWedges
 from ._corners import checked_corner_uvs, finite_float32
 from .glb import is_glb, read_glb, write_glb
 from .msgpack_mesh import is_msgpack_mesh, read_msgpack, write_msgpack
@@ -124,6 +125,7 @@ def encode_mesh(
     quantize_bits: int | None = None,
     grid_box: tuple[object, object] | None = None,
     name: str | None = None,
+    wedges: QuantisedWedges | None = None,
 ) -> bytes:
     """Encode a triangle mesh as "ply", "obj", "glb" or "msgpack" bytes.
 
@@ -140,6 +142,8 @@ def encode_mesh(
         uint16 positions on a grid of that many bits over the bounding box, or over
         `grid_box` = (low, high) when given (e.g. the split stream's grid).
     name : "msgpack" only: stored in the message.
+    wedges : "msgpack" only: the level's wedges quantised on the split stream's
+        attribute grid (`qem_core.stream.quantised_wedges`), for a client that refines.
 
     Raises InvalidOptionsError for an unknown format or an option the format does not
     take, InvalidMeshError for bad arrays. docs/formats.md has each format's layout.
@@ -165,9 +169,12 @@ def encode_mesh(
             quantize_bits=quantize_bits,
             grid_box=grid_box,
             name=name,
+            wedges=wedges,
         )
-    if quantize_bits is not None or grid_box is not None:
-        raise InvalidOptionsError(f"quantize_bits applies to 'msgpack' only, not {fmt!r}")
+    if quantize_bits is not None or grid_box is not None or wedges is not None:
+        raise InvalidOptionsError(
+            f"quantize_bits, grid_box and wedges apply to 'msgpack' only, not {fmt!r}"
+        )
     return _WRITERS[fmt](vertices, faces, attributes, texture, corner_uvs)
 
 

@@ -265,9 +265,10 @@ def _planes_u4(values):
 
 @pytest.mark.parametrize("change", [
     _with(format="qem-mesh-msgpack"),
-    _with(version=3),
-    _with(version=1),  # version 1 frames are no longer read
-    _with(version="2"),
+    _with(version=4),
+    _with(version=2),  # versions 1 and 2 are no longer read
+    _with(version=1),
+    _with(version="3"),
     _without("split_back"),
     _without("grid"),
     _with(n_to=10**9),

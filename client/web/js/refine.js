@@ -5,10 +5,11 @@
 //   base mesh   one msgpack map "qem-mesh-msgpack" v1, positions "u16" on the grid whose
 //               box is `bbox` (the very integers the split stream's deltas refer to);
 //   split stream  frames of uint32 LE length L + L bytes of zlib (RFC 1950) data holding
-//               a msgpack map "qem-splits" v2; integer fields are little-endian byte
+//               a msgpack map "qem-splits" v3; integer fields are little-endian byte
 //               planes (all low bytes, then the next...), positions zigzag residuals,
 //               connectivity relative to the split vertex's neighbourhood, which the
-//               decoder below keeps at the received level (docs/formats.md section 2).
+//               decoder below keeps at the received level (docs/formats.md section 2);
+//               a mesh with appearance has wedges, in both (wedges.js).
 //
 // Split k (level L = nBase + k -> L + 1), as qem_core/_kernels/refine.py applies it:
 //
@@ -22,64 +23,26 @@
 // move costs O(splits crossed + relabels), never a refetch.
 
 import { decode } from "@msgpack/msgpack";
+import {
+  binArray,
+  fail,
+  FrameCutter,
+  fromPlanes,
+  INDEX_TYPES,
+  inflate,
+  unzigzag,
+  WireFormatError,
+} from "./wire.js";
+import { decodeBaseWedges, decodeWedgeFields, WedgeLevels } from "./wedges.js";
 
-export const STREAM_VERSION = 2;
+export { FrameCutter, fromPlanes, inflate, WireFormatError };
+
+export const STREAM_VERSION = 3;
 export const MESH_VERSION = 1;
 const EXPLICIT_FACE = 6; // face codes 0-2: (s, t, x) rotated; 3-5: (t, s, x); 6: explicit
 const ESCAPE = 255; // a third corner given as a back-distance, not as a neighbour index
 const PREDICT_LIMIT = 64; // as qem_core/_kernels/stream_coding.py
 const SPAN_RING_LIMIT = 64; // as stream_coding.py: products stay below 2^53
-const FRAME_LIMIT = 64 << 20; // as qem_core.stream: a larger length means a broken stream
-const INFLATED_LIMIT = 256 << 20; // as qem_core.stream: a frame may not inflate further
-
-export class WireFormatError extends Error {
-  constructor(message) {
-    super(message);
-    this.name = "WireFormatError";
-  }
-}
-
-function fail(message) {
-  throw new WireFormatError(message);
-}
-
-/** `count` little-endian unsigned integers of `width` bytes stored as byte planes. */
-export function fromPlanes(bytes, width, count, what) {
-  if (!(bytes instanceof Uint8Array) || bytes.length !== width * count) {
-    fail(`split frame: '${what}' holds ${bytes?.length} bytes, expected ${width * count}`);
-  }
-  const out = width === 2 ? new Uint16Array(count) : new Uint32Array(count);
-  for (let plane = 0; plane < width; plane++) {
-    const shift = 8 * plane;
-    const offset = plane * count;
-    for (let i = 0; i < count; i++) out[i] += bytes[offset + i] * 2 ** shift;
-  }
-  return out;
-}
-
-/** Zigzag-coded uint32 -> int32 in place: 0, 1, 2, 3... -> 0, -1, 1, -2... */
-function unzigzag(values) {
-  const out = new Int32Array(values.length);
-  for (let i = 0; i < values.length; i++) {
-    const v = values[i];
-    out[i] = (v >>> 1) ^ -(v & 1);
-  }
-  return out;
-}
-
-/** A typed array over a copy of msgpack bin bytes (copied: views may be unaligned). */
-function binArray(bytes, Type, count, what) {
-  if (!(bytes instanceof Uint8Array) || bytes.length !== count * Type.BYTES_PER_ELEMENT) {
-    fail(
-      `base mesh: '${what}' holds ${bytes?.length} bytes, expected ${count * Type.BYTES_PER_ELEMENT}`,
-    );
-  }
-  const copy = new Uint8Array(bytes.length);
-  copy.set(bytes);
-  return new Type(copy.buffer);
-}
-
-const INDEX_TYPES = { u8: Uint8Array, u16: Uint16Array, u32: Uint32Array };
 
 /** The grid p = origin + q * step of `bits` bits over the box low..high (quantise.Grid). */
 export function gridOverBox(bbox, bits) {
@@ -116,6 +79,7 @@ export function decodeBaseMesh(bytes) {
   if (!Array.isArray(bbox) || bbox.length !== 6 || !bbox.every(Number.isFinite)) {
     fail("base mesh: 'bbox' must be 6 finite numbers");
   }
+  const texture = message.texture instanceof Uint8Array ? message.texture : null;
   return {
     nVertices,
     nFaces,
@@ -123,88 +87,9 @@ export function decodeBaseMesh(bytes) {
     bits: message.position_bits,
     positions: binArray(message.positions, Uint16Array, 3 * nVertices, "positions"),
     indices: binArray(message.indices, IndexType, 3 * nFaces, "indices"),
+    wedges: message.wedges === undefined ? null : decodeBaseWedges(message.wedges, nFaces),
+    texture: texture && { bytes: texture, type: message.texture_type },
   };
-}
-
-/** Cuts a byte stream (any chunking) into frame payloads. */
-export class FrameCutter {
-  constructor() {
-    this.buffer = new Uint8Array(1 << 16);
-    this.start = 0;
-    this.end = 0;
-  }
-
-  /** Append a chunk; returns the payloads it completed (copies, in stream order). */
-  push(chunk) {
-    this.reserve(chunk.length);
-    this.buffer.set(chunk, this.end);
-    this.end += chunk.length;
-    const payloads = [];
-    while (this.end - this.start >= 4) {
-      const b = this.buffer;
-      const s = this.start;
-      const length = (b[s] | (b[s + 1] << 8) | (b[s + 2] << 16) | (b[s + 3] << 24)) >>> 0;
-      if (length > FRAME_LIMIT) fail(`split frame declares ${length} bytes, over the limit`);
-      if (this.end - s < 4 + length) break;
-      payloads.push(b.slice(s + 4, s + 4 + length));
-      this.start = s + 4 + length;
-    }
-    return payloads;
-  }
-
-  /** Raise if the stream ended inside a frame. */
-  finish() {
-    if (this.end > this.start) {
-      fail(`split stream ends inside a frame (${this.end - this.start} bytes left)`);
-    }
-  }
-
-  reserve(extra) {
-    const held = this.end - this.start;
-    if (this.start > 0 && this.end + extra > this.buffer.length) {
-      this.buffer.copyWithin(0, this.start, this.end);
-      this.start = 0;
-      this.end = held;
-    }
-    if (held + extra > this.buffer.length) {
-      let size = this.buffer.length;
-      while (size < held + extra) size *= 2;
-      const grown = new Uint8Array(size);
-      grown.set(this.buffer.subarray(0, held));
-      this.buffer = grown;
-    }
-  }
-}
-
-/** zlib (RFC 1950) data -> bytes, with the browser's DecompressionStream. The payload
- * is written straight into the stream: going through a Blob costs the blob registry's
- * round trips, seconds per frame on a large stream. */
-export async function inflate(payload) {
-  const stream = new DecompressionStream("deflate");
-  const writer = stream.writable.getWriter();
-  writer.write(payload).catch(() => {}); // errors surface on the readable side
-  writer.close().catch(() => {});
-  const reader = stream.readable.getReader();
-  const chunks = [];
-  let size = 0;
-  for (;;) {
-    const { done, value } = await reader.read();
-    if (done) break;
-    chunks.push(value);
-    size += value.length;
-    if (size > INFLATED_LIMIT) {
-      reader.cancel().catch(() => {});
-      fail(`split frame inflates beyond ${INFLATED_LIMIT >> 20} MiB`);
-    }
-  }
-  if (chunks.length === 1) return chunks[0];
-  const out = new Uint8Array(size);
-  let at = 0;
-  for (const chunk of chunks) {
-    out.set(chunk, at);
-    at += chunk.length;
-  }
-  return out;
 }
 
 /** msgpack bin bytes of an exact length (any length when `length` is null). */
@@ -225,7 +110,9 @@ export function decodeFrame(bytes) {
     fail(`unreadable split frame: ${error.message}`);
   }
   if (body?.format !== "qem-splits") fail("not a qem-splits frame");
-  if (!(body.version <= STREAM_VERSION)) fail(`split frame version ${body.version} is too new`);
+  if (!(body.version <= STREAM_VERSION)) {
+    fail(`split frame version ${body.version} is too new (this reads ${STREAM_VERSION})`);
+  }
   if (body.version !== STREAM_VERSION) {
     fail(`split frame version ${body.version} is no longer read (this reads ${STREAM_VERSION})`);
   }
@@ -251,6 +138,7 @@ export function decodeFrame(bytes) {
     relabelMasks: binField(body, "relabel_masks", null),
     mid: unzigzag(fromPlanes(body.position_mid, 4, 3 * k, "position_mid")),
     span: unzigzag(fromPlanes(body.position_span, 4, 3 * k, "position_span")),
+    wedges: decodeWedgeFields(body, k),
   };
 }
 
@@ -439,6 +327,10 @@ export class ProgressiveLevels {
     this.state = new SplitState(base, nFull, fFull); // the received level, for decoding
     this.broken = null; // why a frame was refused half-way
     this.level = this.nBase; // vertex count the buffers hold now
+    // Appearance (UVs, colours, normals) when the base mesh has wedges; the stream's
+    // wedge fields are ignored without.
+    this.wedges = base.wedges ? new WedgeLevels(base, this) : null;
+    this.texture = base.texture;
   }
 
   facesAt(n) {
@@ -471,7 +363,9 @@ export class ProgressiveLevels {
     }
     if (faces > this.fFull) fail(`frame brings ${faces} faces, past the full ${this.fFull}`);
     try {
+      this.wedges?.beginFrame(frame.wedges);
       this.decodeSplits(frame);
+      this.wedges?.endFrame();
     } catch (error) {
       this.broken = error.message;
       throw error;
@@ -558,6 +452,7 @@ export class ProgressiveLevels {
         this.relabelFaces[relabel++] = f;
       }
       for (let c = 3 * firstNew; c < 3 * face; c++) state.link(sf[c], c);
+      this.wedges?.decodeSplit(i, s, t, state, nc, firstNew, face);
       // Positions: a + b = 2 (old + mid) + (e & 1), e = b - a = span + prediction.
       state.spanPrediction(s, t, prediction);
       for (let axis = 0; axis < 3; axis++) {
@@ -634,6 +529,7 @@ export class ProgressiveLevels {
       else if (faces[f + 1] === s) faces[f + 1] = t;
       else if (faces[f + 2] === s) faces[f + 2] = t;
     }
+    this.wedges?.applySplit(k, s, t);
     this.level = t + 1;
   }
 
@@ -650,6 +546,7 @@ export class ProgressiveLevels {
     }
     const q = this.positions;
     for (let axis = 0; axis < 3; axis++) q[3 * s + axis] -= this.deltas[6 * k + axis];
+    this.wedges?.undoSplit(k, s, t);
     this.level = t;
   }
 }

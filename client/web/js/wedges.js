@@ -1,0 +1,595 @@
+// Appearance in the browser: the wedges of a progressive mesh (UVs, colours, normals on
+// the corners of each vertex), refined from the split stream as the positions are, and
+// the render vertices three.js draws: one per (vertex, wedge) pair, so a UV seam keeps
+// two texture coordinates on one position.
+//
+// Wire formats (docs/formats.md): the base mesh's `wedges` map (the wedge of each face
+// corner, each wedge's values as grid integers) and a frame's wedge fields (version 3):
+// per split, symbols naming the wedge of each corner of s's fan and of the new faces,
+// mostly 0 (predicted), and value residuals. qem_core/_kernels/wedge_coding.py is the
+// reference; its module docstring states the prediction rules this file repeats.
+//
+// Level moves keep two states, as refine.js does for the geometry: the received level
+// (what the next frame is coded against) and the level on screen, moved both ways by
+// per-split records of corner and value changes.
+
+import { binArray, fail, fromPlanes, INDEX_TYPES, unzigzag } from "./wire.js";
+
+const ESCAPE = 255; // as wedge_coding.py: a wedge given as a back-distance (symbols
+// 1..254 name candidates 0..253 of the corner's list)
+
+/** A typed array of the same type holding `array` and room for at least `need` items. */
+function grow(array, need) {
+  if (need <= array.length) return array;
+  let size = Math.max(array.length, 16);
+  while (size < need) size *= 2;
+  const grown = new array.constructor(size);
+  grown.set(array);
+  return grown;
+}
+
+/** The attribute grid of a stream (quantise.AttributeGrid.to_dict), checked. */
+export function attributeGrid(value, what) {
+  const ok =
+    value &&
+    Array.isArray(value.names) &&
+    Array.isArray(value.widths) &&
+    Array.isArray(value.bits) &&
+    value.names.length === value.widths.length &&
+    value.names.length === value.bits.length &&
+    value.widths.every((w) => Number.isInteger(w) && w >= 1 && w <= 4) &&
+    value.bits.every((b) => Number.isInteger(b) && b >= 1 && b <= 16);
+  if (!ok) fail(`${what}: bad wedge grid`);
+  const width = value.widths.reduce((a, b) => a + b, 0);
+  const numbers = (list) => Array.isArray(list) && list.length === width && list.every(Number.isFinite);
+  if (!width || !numbers(value.origin) || !numbers(value.step) || !value.step.every((s) => s > 0)) {
+    fail(`${what}: bad wedge grid`);
+  }
+  const qMax = [];
+  value.widths.forEach((w, a) => {
+    for (let j = 0; j < w; j++) qMax.push(2 ** value.bits[a] - 1);
+  });
+  return { ...value, width, qMax };
+}
+
+function sameGrid(a, b) {
+  const close = (x, y) => Math.abs(x - y) <= 1e-9 * Math.max(Math.abs(x), Math.abs(y), 1e-300);
+  return (
+    a.width === b.width &&
+    a.names.every((name, i) => name === b.names[i] && a.bits[i] === b.bits[i]) &&
+    a.origin.every((o, d) => close(o, b.origin[d]) && close(a.step[d], b.step[d]))
+  );
+}
+
+/** A frame's wedge fields (null when it has none), lengths checked. */
+export function decodeWedgeFields(body, k) {
+  if (body.wedge_grid === undefined) return null;
+  const grid = attributeGrid(body.wedge_grid, "split frame");
+  for (const key of ["wedges_from", "n_wedge_rows", "n_wedge_backs"]) {
+    if (!Number.isInteger(body[key]) || body[key] < 0) fail(`split frame: '${key}' is ${body[key]}`);
+  }
+  const counts = fromPlanes(body.wedge_counts, 2, 3 * k, "wedge_counts");
+  const nRows = body.n_wedge_rows;
+  let rowsNeeded = 0;
+  for (let i = 0; i < 2 * k; i++) rowsNeeded += counts[i];
+  if (rowsNeeded > nRows) fail("split frame: more new wedges and updates than value rows");
+  const symbols = body.wedge_corners;
+  if (!(symbols instanceof Uint8Array)) fail("split frame: 'wedge_corners' is not bytes");
+  return {
+    grid,
+    wedgesFrom: body.wedges_from,
+    counts,
+    symbols,
+    backs: fromPlanes(body.wedge_backs, 4, body.n_wedge_backs, "wedge_backs"),
+    rows: unzigzag(fromPlanes(body.wedge_values, 4, grid.width * nRows, "wedge_values")),
+    nRows,
+  };
+}
+
+/** The base mesh's `wedges` map (msgpack_mesh.py), checked. */
+export function decodeBaseWedges(entry, nFaces) {
+  const grid = attributeGrid(entry?.grid, "base mesh");
+  const count = entry.count;
+  if (!Number.isInteger(count) || count < 0) fail("base mesh: bad wedge count");
+  const Type = INDEX_TYPES[entry.corner_type];
+  if (!Type) fail(`base mesh: unknown wedge corner_type '${entry.corner_type}'`);
+  const corners = binArray(entry.corners, Type, 3 * nFaces, "wedges.corners");
+  const values = binArray(entry.values, Uint16Array, count * grid.width, "wedges.values");
+  for (const w of corners) if (w >= count) fail("base mesh: a corner names a wedge beyond the count");
+  return { grid, count, corners, values };
+}
+
+/**
+ * The wedges of a ProgressiveLevels (refine.js) at the received level and at the level on
+ * screen, and the render vertices of the level on screen.
+ */
+export class WedgeLevels {
+  constructor(base, levels) {
+    const { grid, count } = base.wedges;
+    this.levels = levels;
+    this.grid = grid;
+    this.width = grid.width;
+    const corners = 3 * levels.fFull;
+    // The received level (what frames are decoded against).
+    this.received = new Int32Array(corners);
+    this.received.set(base.wedges.corners);
+    this.receivedValues = new Int32Array(Math.max(16, 2 * count * this.width));
+    this.receivedValues.set(base.wedges.values);
+    this.nWedges = count;
+    // The level on screen.
+    this.cornerWedge = new Int32Array(corners);
+    this.cornerWedge.set(base.wedges.corners);
+    this.values = new Int32Array(this.receivedValues.length);
+    this.values.set(base.wedges.values);
+    const nSplits = levels.nFull - levels.nBase;
+    this.levelWedges = new Uint32Array(nSplits + 1); // wedges of level nBase + k
+    this.levelWedges[0] = count;
+    // Per split: corner changes (corner, from, to) and value changes (wedge, from, to).
+    this.cornerOffsets = new Uint32Array(nSplits + 1);
+    this.cornerChanges = new Int32Array(3 * Math.max(16, nSplits));
+    this.valueOffsets = new Uint32Array(nSplits + 1);
+    this.valueWedges = new Int32Array(Math.max(16, nSplits));
+    this.valueChanges = new Int32Array(2 * this.width * this.valueWedges.length);
+    this.nCornerChanges = 0;
+    this.nValueChanges = 0;
+    this.scratch = { old: new Int32Array(16), ws: new Int32Array(16), list: new Int32Array(32) };
+    this.frame = null;
+    this.render = new RenderVertices(this, levels);
+  }
+
+  // -- decoding ----------------------------------------------------------------------------
+
+  /** Check a frame's wedge fields against the received level; start reading them. */
+  beginFrame(fields) {
+    if (!fields) fail("split frame carries no wedges, but the base mesh has some");
+    if (!sameGrid(fields.grid, this.grid)) {
+      fail("the split stream's wedge grid is not the base mesh's: values would not refine");
+    }
+    if (fields.wedgesFrom !== this.nWedges) {
+      fail(`frame refines ${fields.wedgesFrom} wedges, the viewer holds ${this.nWedges}`);
+    }
+    const k = fields.counts.length / 3;
+    let added = 0;
+    for (let i = 0; i < k; i++) added += fields.counts[i];
+    const need = (this.nWedges + added) * this.width;
+    this.receivedValues = grow(this.receivedValues, need);
+    this.values = grow(this.values, need);
+    this.frame = { ...fields, k, atSymbol: 0, atBack: 0, atRow: 0 };
+  }
+
+  /** The wedge side of split i of the frame (split vertex s, new vertex t, nc old corners
+   * of s in state.cs; new faces firstFace..face-1), once its connectivity is decoded and
+   * linked into the state (wedge_coding.code_wedges, decoding). */
+  decodeSplit(i, s, t, state, nc, firstFace, face) {
+    const f = this.frame;
+    const { faces, cs } = state;
+    const cw = this.received;
+    const split = t - this.levels.nBase;
+    const nNew = f.counts[i];
+    const nUpdates = f.counts[f.k + i];
+    const nExtra = f.counts[2 * f.k + i];
+    const W = this.nWedges;
+    const after = W + nNew;
+    const sc = this.scratch;
+    sc.old = grow(sc.old, nc);
+    sc.ws = grow(sc.ws, nc);
+    const { old, ws } = sc;
+    for (let q = 0; q < nc; q++) old[q] = ws[q] = cw[cs[q]];
+    const nws = distinctSorted(ws, nc);
+    if (f.atRow + nws + nUpdates + nNew > f.nRows) fail("split frame: a field ends before the splits do");
+    const listed = new Int32Array(nws + nNew); // L: ws, then the new wedges
+    listed.set(ws.subarray(0, nws));
+    for (let j = 0; j < nNew; j++) listed[nws + j] = W + j;
+    const mapTo = new Int32Array(nws).fill(-1);
+    const stays = new Uint8Array(nws);
+    const used = new Uint8Array(nNew);
+    for (let q = 0; q < nc; q++) if (faces[cs[q]] === s) stays[findSorted(ws, nws, old[q])] = 1;
+    let fresh = 0;
+    const nCoded = nc + 3 * (face - firstFace);
+    for (let z = 0; z < nCoded; z++) {
+      const c = z < nc ? cs[z] : 3 * firstFace + z - nc;
+      const v = faces[c];
+      let list = listed;
+      let nList = listed.length;
+      if (v !== s && v !== t) {
+        const [mine, nMine] = sortedCorners(state, v, c, sc);
+        sc.list = grow(sc.list, nMine);
+        for (let q = 0; q < nMine; q++) sc.list[q] = cw[mine[q]];
+        list = sc.list;
+        nList = distinctSorted(list, nMine);
+      }
+      let predicted;
+      let slot = -1;
+      if (z < nc) {
+        slot = findSorted(ws, nws, old[z]);
+        if (v === s) predicted = old[z];
+        else if (mapTo[slot] >= 0) predicted = mapTo[slot];
+        else if (stays[slot] && fresh < nNew) predicted = W + fresh;
+        else predicted = old[z];
+      } else {
+        predicted = predictNewCorner(state, cw, c, s, t, old, nc, sc);
+        if (predicted < 0 && (v === s || v === t) && listed.length > 0) {
+          predicted = fresh < nNew ? W + fresh : listed[0];
+        }
+      }
+      if (f.atSymbol >= f.symbols.length) fail("split frame: a field ends before the splits do");
+      const symbol = f.symbols[f.atSymbol++];
+      let wedge = -1;
+      if (symbol === 0) wedge = predicted;
+      else if (symbol === ESCAPE) {
+        if (f.atBack >= f.backs.length) fail("split frame: a field ends before the splits do");
+        wedge = after - f.backs[f.atBack++];
+      } else if (symbol - 1 < nList) wedge = list[symbol - 1];
+      if (!(wedge >= 0 && wedge < after)) {
+        fail("split frame: a corner or update names a wedge that does not exist");
+      }
+      if (z < nc) {
+        if (wedge !== cw[c]) this.pushCornerChange(c, cw[c], wedge);
+      } else {
+        this.cornerWedge[c] = wedge; // a new face, as born (like refine.js's indices)
+      }
+      cw[c] = wedge;
+      if (z < nc && v === t && mapTo[slot] < 0) {
+        mapTo[slot] = wedge;
+        if (wedge >= W && wedge < after) {
+          used[wedge - W] = 1;
+          while (fresh < nNew && used[fresh]) fresh++;
+        }
+      }
+    }
+    for (let e = 0; e < nExtra; e++) {
+      if (f.atBack + 2 > f.backs.length) fail("split frame: a field ends before the splits do");
+      const c = 3 * face - f.backs[f.atBack];
+      const wedge = after - f.backs[f.atBack + 1];
+      f.atBack += 2;
+      if (!(c >= 0 && c < 3 * face)) fail("split frame: a wedge relabel names a corner that does not exist");
+      if (!(wedge >= 0 && wedge < after)) {
+        fail("split frame: a corner or update names a wedge that does not exist");
+      }
+      this.pushCornerChange(c, cw[c], wedge);
+      cw[c] = wedge;
+    }
+    this.decodeValues(split, ws, nws, nUpdates, nNew, mapTo);
+    this.levelWedges[split + 1] = after;
+    this.cornerOffsets[split + 1] = this.nCornerChanges;
+    this.valueOffsets[split + 1] = this.nValueChanges;
+  }
+
+  /** The value rows of one split: ws, extra updates, new wedges (code_wedges). */
+  decodeValues(split, ws, nws, nUpdates, nNew, mapTo) {
+    const f = this.frame;
+    const width = this.width;
+    const values = this.receivedValues;
+    const W = this.nWedges;
+    const row = (r, d) => f.rows[d * f.nRows + f.atRow + r];
+    const before = new Int32Array(nws * width);
+    for (let q = 0; q < nws; q++) {
+      for (let d = 0; d < width; d++) before[q * width + d] = values[ws[q] * width + d];
+    }
+    const changed = [];
+    for (let q = 0; q < nws; q++) {
+      let same = true;
+      for (let d = 0; d < width; d++) {
+        const value = before[q * width + d] + row(q, d);
+        if (value !== before[q * width + d]) same = false;
+        values[ws[q] * width + d] = value;
+      }
+      if (!same) changed.push([ws[q], before.subarray(q * width, (q + 1) * width)]);
+    }
+    if (f.atBack + nUpdates > f.backs.length) fail("split frame: a field ends before the splits do");
+    for (let e = 0; e < nUpdates; e++) {
+      const wedge = W - f.backs[f.atBack + e];
+      if (!(wedge >= 0 && wedge < W)) fail("split frame: a corner or update names a wedge that does not exist");
+      const from = values.slice(wedge * width, (wedge + 1) * width);
+      for (let d = 0; d < width; d++) values[wedge * width + d] += row(nws + e, d);
+      changed.push([wedge, from]);
+    }
+    f.atBack += nUpdates;
+    for (let j = 0; j < nNew; j++) {
+      let parent = mapTo.indexOf(W + j);
+      if (parent < 0 && nws > 0) parent = 0;
+      for (let d = 0; d < width; d++) {
+        const predicted = parent >= 0 ? before[parent * width + d] : 0;
+        const value = predicted + row(nws + nUpdates + j, d);
+        values[(W + j) * width + d] = value;
+        this.values[(W + j) * width + d] = value; // unused below its split: set at once
+      }
+    }
+    for (const [wedge, from] of changed) this.pushValueChange(wedge, from, values);
+    const qMax = this.grid.qMax;
+    const inGrid = (wedge) => {
+      for (let d = 0; d < width; d++) {
+        const value = values[wedge * width + d];
+        if (!(value >= 0 && value <= qMax[d])) fail("split frame: a wedge value leaves its grid");
+      }
+    };
+    for (let q = 0; q < nws; q++) inGrid(ws[q]);
+    for (let j = 0; j < nNew; j++) inGrid(W + j);
+    for (const [wedge] of changed) inGrid(wedge);
+    f.atRow += nws + nUpdates + nNew;
+    this.nWedges = W + nNew;
+  }
+
+  /** Every field consumed exactly, as the frame ends. */
+  endFrame() {
+    const f = this.frame;
+    if (f.atSymbol !== f.symbols.length || f.atBack !== f.backs.length || f.atRow !== f.nRows) {
+      fail("split frame: a field holds more than the splits use");
+    }
+    this.frame = null;
+  }
+
+  pushCornerChange(corner, from, to) {
+    const n = this.nCornerChanges++;
+    this.cornerChanges = grow(this.cornerChanges, 3 * (n + 1));
+    this.cornerChanges[3 * n] = corner;
+    this.cornerChanges[3 * n + 1] = from;
+    this.cornerChanges[3 * n + 2] = to;
+  }
+
+  pushValueChange(wedge, from, values) {
+    const n = this.nValueChanges;
+    const width = this.width;
+    this.valueWedges = grow(this.valueWedges, n + 1);
+    this.valueChanges = grow(this.valueChanges, 2 * width * (n + 1));
+    this.valueWedges[n] = wedge;
+    this.valueChanges.set(from, 2 * width * n);
+    this.valueChanges.set(values.subarray(wedge * width, (wedge + 1) * width), 2 * width * n + width);
+    this.nValueChanges = n + 1;
+  }
+
+  // -- level moves ---------------------------------------------------------------------
+
+  /** Split k's wedge side on the level on screen, after its geometry (refine.js). */
+  applySplit(k, s, t) {
+    this.changeValues(k, 1);
+    const changes = this.cornerChanges;
+    for (let r = this.cornerOffsets[k]; r < this.cornerOffsets[k + 1]; r++) {
+      this.cornerWedge[changes[3 * r]] = changes[3 * r + 2];
+    }
+    this.render.afterSplit(k, s, t, true);
+  }
+
+  /** Undo split k's wedge side, after its geometry is undone. */
+  undoSplit(k, s, t) {
+    const changes = this.cornerChanges;
+    for (let r = this.cornerOffsets[k + 1] - 1; r >= this.cornerOffsets[k]; r--) {
+      this.cornerWedge[changes[3 * r]] = changes[3 * r + 1];
+    }
+    this.changeValues(k, -1);
+    this.render.afterSplit(k, s, t, false);
+  }
+
+  /** Value changes of split k forwards (1: to) or backwards (-1: from, last first). */
+  changeValues(k, direction) {
+    const width = this.width;
+    const first = this.valueOffsets[k];
+    const last = this.valueOffsets[k + 1];
+    for (let n = 0; n < last - first; n++) {
+      const r = direction > 0 ? first + n : last - 1 - n;
+      const wedge = this.valueWedges[r];
+      const at = 2 * width * r + (direction > 0 ? width : 0);
+      this.values.set(this.valueChanges.subarray(at, at + width), wedge * width);
+      this.render.wedgeChanged(wedge);
+    }
+  }
+
+  wedgesAt(n) {
+    return this.levelWedges[n - this.levels.nBase];
+  }
+}
+
+/** values[0..n) sorted ascending, repeats dropped; returns the new length. */
+function distinctSorted(values, n) {
+  values.subarray(0, n).sort();
+  let m = 0;
+  for (let q = 0; q < n; q++) if (m === 0 || values[q] !== values[m - 1]) values[m++] = values[q];
+  return m;
+}
+
+/** Index of x in sorted values[0..n), or -1. */
+function findSorted(values, n, x) {
+  let lo = 0;
+  let hi = n;
+  while (lo < hi) {
+    const mid = (lo + hi) >> 1;
+    if (values[mid] < x) lo = mid + 1;
+    else hi = mid;
+  }
+  return lo < n && values[lo] === x ? lo : -1;
+}
+
+/** v's corners numbered below `below`, ascending: [array, count] (scratch sc.mine). */
+function sortedCorners(state, v, below, sc) {
+  let count = 0;
+  for (let c = state.head[v]; c !== -1; c = state.next[c]) count++;
+  sc.mine = grow(sc.mine ?? new Int32Array(16), count);
+  let n = 0;
+  for (let c = state.head[v]; c !== -1; c = state.next[c]) if (c < below) sc.mine[n++] = c;
+  sc.mine.subarray(0, n).sort();
+  return [sc.mine, n];
+}
+
+/** 2 if the face at `f` (3 * face) holds a preferred vertex, 1 if it holds u or w. */
+function faceScore(faces, f, u, w, preferredA, preferredB) {
+  let score = 0;
+  for (let j = 0; j < 3; j++) {
+    const x = faces[f + j];
+    if (x === preferredA || x === preferredB) return 2;
+    if (x === u || x === w) score = 1;
+  }
+  return score;
+}
+
+/** wedge_coding._predict_new_corner: the predicted wedge of corner c of a new face. */
+function predictNewCorner(state, cw, c, s, t, old, nc, sc) {
+  const faces = state.faces;
+  const f = c - (c % 3);
+  const j = c % 3;
+  const v = faces[c];
+  const u = faces[f + ((j + 1) % 3)];
+  const w = faces[f + ((j + 2) % 3)];
+  let preferredA = t;
+  let preferredB = -1;
+  if (v === s || v === t) {
+    preferredA = u !== s && u !== t ? u : -1;
+    preferredB = w !== s && w !== t ? w : -1;
+  }
+  let best = 0;
+  let predicted = -1;
+  let first = -1;
+  if (v === s) {
+    for (let q = 0; q < nc; q++) {
+      const corner = state.cs[q];
+      if (faces[corner] !== t) continue;
+      if (first < 0) first = old[q];
+      const score = faceScore(faces, corner - (corner % 3), u, w, preferredA, preferredB);
+      if (score > best) {
+        best = score;
+        predicted = old[q];
+      }
+    }
+  }
+  const [mine, nMine] = sortedCorners(state, v, c, sc);
+  for (let q = 0; q < nMine; q++) {
+    const corner = mine[q];
+    if (first < 0) first = cw[corner];
+    const score = faceScore(faces, corner - (corner % 3), u, w, preferredA, preferredB);
+    if (score > best) {
+      best = score;
+      predicted = cw[corner];
+    }
+  }
+  return predicted >= 0 ? predicted : first;
+}
+
+/**
+ * The vertices three.js draws for a mesh with wedges: one per (vertex, wedge) pair met
+ * so far, kept for good (a level move only changes which ones the faces use), each with
+ * the grid position of its vertex and the values of its wedge. `indices` holds every
+ * face corner's render vertex for the level on screen.
+ */
+class RenderVertices {
+  constructor(wedges, levels) {
+    this.wedges = wedges;
+    this.levels = levels;
+    this.indices = new Uint32Array(3 * levels.fFull);
+    this.ofVertex = new Int32Array(levels.nFull).fill(-1); // first pair of each vertex
+    this.ofWedge = new Int32Array(16).fill(-1); // first pair of each wedge (grows)
+    this.capacity = 0;
+    this.count = 0;
+    this.generation = 0; // bumped when the buffers are reallocated
+    this.reserve(Math.max(64, levels.nBase * 2));
+    const nCorners = 3 * levels.facesAt(levels.nBase);
+    for (let c = 0; c < nCorners; c++) this.refresh(c);
+  }
+
+  reserve(need) {
+    if (need <= this.capacity) return;
+    let size = Math.max(this.capacity, 64);
+    while (size < need) size *= 2;
+    const resize = (array, perItem, fill = 0) => {
+      const grown = new array.constructor(size * perItem).fill(fill);
+      grown.set(array.subarray(0, this.count * perItem));
+      return grown;
+    };
+    this.vertex = resize(this.vertex ?? new Int32Array(0), 1);
+    this.wedge = resize(this.wedge ?? new Int32Array(0), 1);
+    this.nextOfVertex = resize(this.nextOfVertex ?? new Int32Array(0), 1, -1);
+    this.nextOfWedge = resize(this.nextOfWedge ?? new Int32Array(0), 1, -1);
+    this.positions = resize(this.positions ?? new Float32Array(0), 3);
+    this.attributes = {};
+    let column = 0;
+    const grid = this.wedges.grid;
+    grid.names.forEach((name, a) => {
+      const width = grid.widths[a];
+      const old = this.attributeArrays?.[name] ?? new Float32Array(0);
+      this.attributes[name] = { array: resize(old, width), width, column };
+      column += width;
+    });
+    this.attributeArrays = Object.fromEntries(
+      Object.entries(this.attributes).map(([name, entry]) => [name, entry.array]),
+    );
+    this.capacity = size;
+    this.generation++;
+  }
+
+  /** The render vertex of (v, w), made when first met. */
+  pair(v, w) {
+    for (let p = this.ofVertex[v]; p !== -1; p = this.nextOfVertex[p]) {
+      if (this.wedge[p] === w) return p;
+    }
+    this.reserve(this.count + 1);
+    const p = this.count++;
+    this.vertex[p] = v;
+    this.wedge[p] = w;
+    this.nextOfVertex[p] = this.ofVertex[v];
+    this.ofVertex[v] = p;
+    if (w >= this.ofWedge.length) {
+      const grown = new Int32Array(Math.max(2 * this.ofWedge.length, w + 1)).fill(-1);
+      grown.set(this.ofWedge);
+      this.ofWedge = grown;
+    }
+    this.nextOfWedge[p] = this.ofWedge[w];
+    this.ofWedge[w] = p;
+    this.writePosition(p);
+    this.writeValues(p);
+    return p;
+  }
+
+  refresh(c) {
+    this.indices[c] = this.pair(this.levels.indices[c], this.wedges.cornerWedge[c]);
+  }
+
+  writePosition(p) {
+    const q = this.levels.positions;
+    const v = this.vertex[p];
+    for (let d = 0; d < 3; d++) this.positions[3 * p + d] = q[3 * v + d];
+  }
+
+  writeValues(p) {
+    const { grid, values, width } = this.wedges;
+    const w = this.wedge[p];
+    for (const [name, { array, width: n, column }] of Object.entries(this.attributes)) {
+      for (let d = 0; d < n; d++) {
+        const col = column + d;
+        let value = grid.origin[col] + values[w * width + col] * grid.step[col];
+        // three.js shades in linear light; files give colours in sRGB (not alpha).
+        if (name === "color" && d < 3) value = srgbToLinear(value);
+        array[n * p + d] = value;
+      }
+    }
+  }
+
+  vertexMoved(v) {
+    for (let p = this.ofVertex[v]; p !== -1; p = this.nextOfVertex[p]) this.writePosition(p);
+  }
+
+  wedgeChanged(w) {
+    if (w >= this.ofWedge.length) return;
+    for (let p = this.ofWedge[w]; p !== -1; p = this.nextOfWedge[p]) this.writeValues(p);
+  }
+
+  /** After split k was applied (or undone): positions of s and t, and the render vertex
+   * of every corner the split touched. */
+  afterSplit(k, s, t, applied) {
+    const levels = this.levels;
+    this.vertexMoved(s);
+    if (applied) this.vertexMoved(t);
+    for (let r = levels.relabelOffsets[k]; r < levels.relabelOffsets[k + 1]; r++) {
+      const f = 3 * levels.relabelFaces[r];
+      for (let j = 0; j < 3; j++) this.refresh(f + j);
+    }
+    const changes = this.wedges.cornerChanges;
+    for (let r = this.wedges.cornerOffsets[k]; r < this.wedges.cornerOffsets[k + 1]; r++) {
+      this.refresh(changes[3 * r]);
+    }
+    if (applied) {
+      for (let c = 3 * levels.levelFaces[k]; c < 3 * levels.levelFaces[k + 1]; c++) this.refresh(c);
+    }
+  }
+}
+
+function srgbToLinear(c) {
+  return c <= 0.04045 ? c / 12.92 : ((c + 0.055) / 1.055) ** 2.4;
+}

@@ -1,0 +1,136 @@
+// Bytes to values for the viewer's wire formats: frames cut from a byte stream, zlib
+// inflated, integer fields stored as little-endian byte planes (qem_core/stream.py), bin
+// fields of msgpack maps copied into typed arrays. Errors are WireFormatError.
+
+const FRAME_LIMIT = 64 << 20; // as qem_core.stream: a larger length means a broken stream
+const INFLATED_LIMIT = 256 << 20; // as qem_core.stream: a frame may not inflate further
+
+export class WireFormatError extends Error {
+  constructor(message) {
+    super(message);
+    this.name = "WireFormatError";
+  }
+}
+
+export function fail(message) {
+  throw new WireFormatError(message);
+}
+
+/** `count` little-endian unsigned integers of `width` bytes stored as byte planes. */
+export function fromPlanes(bytes, width, count, what) {
+  if (!(bytes instanceof Uint8Array) || bytes.length !== width * count) {
+    fail(`split frame: '${what}' holds ${bytes?.length} bytes, expected ${width * count}`);
+  }
+  const out = width === 2 ? new Uint16Array(count) : new Uint32Array(count);
+  for (let plane = 0; plane < width; plane++) {
+    const shift = 8 * plane;
+    const offset = plane * count;
+    for (let i = 0; i < count; i++) out[i] += bytes[offset + i] * 2 ** shift;
+  }
+  return out;
+}
+
+/** Zigzag-coded uint32 -> int32 in place: 0, 1, 2, 3... -> 0, -1, 1, -2... */
+export function unzigzag(values) {
+  const out = new Int32Array(values.length);
+  for (let i = 0; i < values.length; i++) {
+    const v = values[i];
+    out[i] = (v >>> 1) ^ -(v & 1);
+  }
+  return out;
+}
+
+/** A typed array over a copy of msgpack bin bytes (copied: views may be unaligned). */
+export function binArray(bytes, Type, count, what) {
+  if (!(bytes instanceof Uint8Array) || bytes.length !== count * Type.BYTES_PER_ELEMENT) {
+    fail(
+      `base mesh: '${what}' holds ${bytes?.length} bytes, expected ${count * Type.BYTES_PER_ELEMENT}`,
+    );
+  }
+  const copy = new Uint8Array(bytes.length);
+  copy.set(bytes);
+  return new Type(copy.buffer);
+}
+
+export const INDEX_TYPES = { u8: Uint8Array, u16: Uint16Array, u32: Uint32Array };
+
+/** Cuts a byte stream (any chunking) into frame payloads. */
+export class FrameCutter {
+  constructor() {
+    this.buffer = new Uint8Array(1 << 16);
+    this.start = 0;
+    this.end = 0;
+  }
+
+  /** Append a chunk; returns the payloads it completed (copies, in stream order). */
+  push(chunk) {
+    this.reserve(chunk.length);
+    this.buffer.set(chunk, this.end);
+    this.end += chunk.length;
+    const payloads = [];
+    while (this.end - this.start >= 4) {
+      const b = this.buffer;
+      const s = this.start;
+      const length = (b[s] | (b[s + 1] << 8) | (b[s + 2] << 16) | (b[s + 3] << 24)) >>> 0;
+      if (length > FRAME_LIMIT) fail(`split frame declares ${length} bytes, over the limit`);
+      if (this.end - s < 4 + length) break;
+      payloads.push(b.slice(s + 4, s + 4 + length));
+      this.start = s + 4 + length;
+    }
+    return payloads;
+  }
+
+  /** Raise if the stream ended inside a frame. */
+  finish() {
+    if (this.end > this.start) {
+      fail(`split stream ends inside a frame (${this.end - this.start} bytes left)`);
+    }
+  }
+
+  reserve(extra) {
+    const held = this.end - this.start;
+    if (this.start > 0 && this.end + extra > this.buffer.length) {
+      this.buffer.copyWithin(0, this.start, this.end);
+      this.start = 0;
+      this.end = held;
+    }
+    if (held + extra > this.buffer.length) {
+      let size = this.buffer.length;
+      while (size < held + extra) size *= 2;
+      const grown = new Uint8Array(size);
+      grown.set(this.buffer.subarray(0, held));
+      this.buffer = grown;
+    }
+  }
+}
+
+/** zlib (RFC 1950) data -> bytes, with the browser's DecompressionStream. The payload
+ * is written straight into the stream: going through a Blob costs the blob registry's
+ * round trips, seconds per frame on a large stream. */
+export async function inflate(payload) {
+  const stream = new DecompressionStream("deflate");
+  const writer = stream.writable.getWriter();
+  writer.write(payload).catch(() => {}); // errors surface on the readable side
+  writer.close().catch(() => {});
+  const reader = stream.readable.getReader();
+  const chunks = [];
+  let size = 0;
+  for (;;) {
+    const { done, value } = await reader.read();
+    if (done) break;
+    chunks.push(value);
+    size += value.length;
+    if (size > INFLATED_LIMIT) {
+      reader.cancel().catch(() => {});
+      fail(`split frame inflates beyond ${INFLATED_LIMIT >> 20} MiB`);
+    }
+  }
+  if (chunks.length === 1) return chunks[0];
+  const out = new Uint8Array(size);
+  let at = 0;
+  for (const chunk of chunks) {
+    out.set(chunk, at);
+    at += chunk.length;
+  }
+  return out;
+}

@@ -44,6 +44,7 @@ import numpy as np
 
 from .adjacency import corner_of, has_corner
 from .heap import cost_key, pair
+from .memory import borrowing_kernel
 from .placement import contraction_quadric, edge_cost, minimise_near, place, solve3
 from .quadrics import QUADRIC_SIZE, area_weight, evaluate
 
@@ -222,7 +223,7 @@ def _gather_groups(faces, face_alive, start, count, pool, a, b, look):
     return n
 
 
-gather_groups = numba.njit(cache=True)(_gather_groups)
+gather_groups = borrowing_kernel(_gather_groups)
 
 
 def _volume_constraint(vertices, faces, face_alive, start, count, pool, a, b, ox, oy, oz):
@@ -255,7 +256,7 @@ def _volume_constraint(vertices, faces, face_alive, start, count, pool, a, b, ox
     return gx, gy, gz, h
 
 
-volume_constraint = numba.njit(cache=True)(_volume_constraint)
+volume_constraint = borrowing_kernel(_volume_constraint)
 
 
 def _place_keeping_volume(quadric, vertices, faces, face_alive, start, count, pool, a, b,
@@ -286,7 +287,7 @@ def _place_keeping_volume(quadric, vertices, faces, face_alive, start, count, po
     return max(evaluate(quadric, out[0], out[1], out[2]), 0.0)
 
 
-place_keeping_volume = numba.njit(cache=True)(_place_keeping_volume)
+place_keeping_volume = borrowing_kernel(_place_keeping_volume)
 
 
 def _candidate_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact,
@@ -303,7 +304,8 @@ def _candidate_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact,
                          rank_tolerance, quadric, position)
     contraction_quadric(vertex_quadrics, edge_quadrics, a, b, edge, exact, quadric)
     total = look[10]
-    total[:] = quadric
+    for k in range(QUADRIC_SIZE):  # a loop: an array copy would allocate (no NRT here)
+        total[k] = quadric[k]
     if wedge_quadrics.shape[0] > 0:
         n = gather_groups(faces, face_alive, start, count, pool, a, b, look)
         look[7][1] = n
@@ -354,7 +356,7 @@ def _uv_keeps_orientation(faces, face_alive, start, count, pool, a, b, look):
     return True
 
 
-uv_keeps_orientation = numba.njit(cache=True)(_uv_keeps_orientation)
+uv_keeps_orientation = borrowing_kernel(_uv_keeps_orientation)
 
 
 def _new_wedge_values(position, look):
@@ -369,7 +371,7 @@ def _new_wedge_values(position, look):
                             wedge_values[members[i, 0]], bounds, values[i])
 
 
-new_wedge_values = numba.njit(cache=True)(_new_wedge_values)
+new_wedge_values = borrowing_kernel(_new_wedge_values)
 
 
 def _merge_wedges(faces, face_alive, start, count, pool, a, b, look, log, log_values,
@@ -424,7 +426,7 @@ def _merge_wedges(faces, face_alive, start, count, pool, a, b, look, log, log_va
     return n_log, n_relabel
 
 
-merge_wedges = numba.njit(cache=True)(_merge_wedges)
+merge_wedges = borrowing_kernel(_merge_wedges)
 
 
 def _fill_costs(vertices, vertex_quadrics, edge_quadrics, edges, exact, rank_tolerance,

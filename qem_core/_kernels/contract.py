@@ -59,7 +59,7 @@ from .link import (
     check_link,
     gather,
 )
-from .memory import borrow, prefetch
+from .memory import borrow, borrowing_kernel, prefetch
 from .pairs import merge_pairs, update_vertex_pairs
 from .quadrics import QUADRIC_SIZE
 
@@ -164,7 +164,7 @@ def _prefetch_neighbourhood(vertices, vertex_quadrics, edge_quadrics, face_norma
                 prefetch(edge_quadrics, edge, 8 * QUADRIC_SIZE - 8)
 
 
-prefetch_neighbourhood = numba.njit(cache=True)(_prefetch_neighbourhood)
+prefetch_neighbourhood = borrowing_kernel(_prefetch_neighbourhood)
 
 
 def _prefetch_next(heap_entries, heap_size, start, count, pool, faces, face_edge, stage):
@@ -237,7 +237,7 @@ def _update_vertex_edges(vertices, vertex_quadrics, edge_quadrics, faces, face_a
     return g
 
 
-update_vertex_edges = numba.njit(cache=True)(_update_vertex_edges)
+update_vertex_edges = borrowing_kernel(_update_vertex_edges)
 
 
 def _merge_edges(faces, face_alive, face_edge, face_quadrics, edge_quadrics, start, count,
@@ -288,7 +288,7 @@ def _merge_edges(faces, face_alive, face_edge, face_quadrics, edge_quadrics, sta
             edge_quadrics[row_ax, d] -= face_quadrics[f, d]
 
 
-merge_edges = numba.njit(cache=True)(_merge_edges)
+merge_edges = borrowing_kernel(_merge_edges)
 
 
 def _remove_from_run(start, count, pool, v, f):
@@ -344,7 +344,7 @@ def _rewrite_faces(faces, face_alive, start, count, pool, used, a, b, killed, n_
     return n_killed, n_relabel
 
 
-rewrite_faces = numba.njit(cache=True)(_rewrite_faces)
+rewrite_faces = borrowing_kernel(_rewrite_faces)
 
 
 def _update_after_contraction(vertices, vertex_quadrics, vertex_refused, edge_quadrics,
@@ -398,7 +398,7 @@ def _update_after_contraction(vertices, vertex_quadrics, vertex_refused, edge_qu
                                 face_alive, start, count, pool, look)
 
 
-update_after_contraction = numba.njit(cache=True)(_update_after_contraction)
+update_after_contraction = borrowing_kernel(_update_after_contraction)
 
 
 def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, scratch):

@@ -14,6 +14,7 @@ import numpy as np
 
 from .adjacency import has_corner
 from .link import NEAR_COUNT_A
+from .memory import borrowing_kernel
 
 
 def _turn_ok(vertices, faces, face_normals, f, moved, px, py, pz, cos_step):
@@ -67,7 +68,7 @@ def _faces_keep_orientation(vertices, faces, face_alive, face_normals, start, co
     return True
 
 
-faces_keep_orientation = numba.njit(cache=True)(_faces_keep_orientation)
+faces_keep_orientation = borrowing_kernel(_faces_keep_orientation)
 
 
 def _leaves_a_vertex_bare(faces, face_alive, start, count, pool, near, a, b):
@@ -102,4 +103,4 @@ def _leaves_a_vertex_bare(faces, face_alive, start, count, pool, near, a, b):
     return count[a] + count[b] == 2 * n_dying
 
 
-leaves_a_vertex_bare = numba.njit(cache=True)(_leaves_a_vertex_bare)
+leaves_a_vertex_bare = borrowing_kernel(_leaves_a_vertex_bare)

@@ -31,6 +31,8 @@ from llvmlite import ir
 from numba.core import types
 from numba.extending import intrinsic
 
+from .memory import borrowing_kernel
+
 ARITY = 4
 _LOW32 = (1 << 32) - 1
 
@@ -144,7 +146,7 @@ def _heapify(entries, position, size):
         position[entries[i, 2]] = i
 
 
-heapify = numba.njit(cache=True)(_heapify)
+heapify = borrowing_kernel(_heapify)
 
 
 def _update(entries, position, size, key, ab, edge):
@@ -161,7 +163,7 @@ def _update(entries, position, size, key, ab, edge):
         sift_down(entries, position, i, size[0])
 
 
-update = numba.njit(cache=True)(_update)
+update = borrowing_kernel(_update)
 
 
 def _remove(entries, position, size, edge):
@@ -185,4 +187,4 @@ def _remove(entries, position, size, edge):
         sift_down(entries, position, i, last)
 
 
-remove = numba.njit(cache=True)(_remove)
+remove = borrowing_kernel(_remove)

@@ -27,6 +27,8 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
+from .memory import borrowing_kernel
+
 REFUSE_NONE = 0
 REFUSE_LINK = 1
 REFUSE_BORDER = 2
@@ -106,7 +108,7 @@ def _gather(faces, face_alive, face_edge, start, count, pool, a, b, near, g):
             near[f0 + f1 + f2 - a - b, NEAR_OPPOSITE] = g
 
 
-gather = numba.njit(cache=True)(_gather)
+gather = borrowing_kernel(_gather)
 
 
 def _is_border(faces, face_alive, start, count, pool, v, near, column, g):
@@ -191,4 +193,4 @@ def _check_link(faces, face_alive, start, count, pool, a, b, near, g):
     return REFUSE_NONE
 
 
-check_link = numba.njit(cache=True)(_check_link)
+check_link = borrowing_kernel(_check_link)

@@ -27,6 +27,7 @@ from .adjacency import make_face_lists
 from .appearance import candidate_cost
 from .heap import cost_key, pair, remove, update
 from .link import NEAR_SCRATCH
+from .memory import borrowing_kernel
 
 # At most this many pairs per vertex, its nearest (see the module docstring).
 MAX_PAIRS_PER_VERTEX = 8
@@ -281,7 +282,7 @@ def _merge_pairs(ends, alive, start, count, pool, used, first, heap_entries, hea
     count[b] = 0
 
 
-merge_pairs = numba.njit(cache=True)(_merge_pairs)
+merge_pairs = borrowing_kernel(_merge_pairs)
 
 
 def _update_vertex_pairs(vertices, vertex_quadrics, edge_quadrics, near, generation,
@@ -314,4 +315,4 @@ def _update_vertex_pairs(vertices, vertex_quadrics, edge_quadrics, near, generat
         update(heap_entries, heap_position, heap_size, cost_key(cost), pair(v, y), candidate)
 
 
-update_vertex_pairs = numba.njit(cache=True)(_update_vertex_pairs)
+update_vertex_pairs = borrowing_kernel(_update_vertex_pairs)

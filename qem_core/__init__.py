@@ -17,7 +17,13 @@ from .errors import (
 )
 from .mesh import Mesh
 from .options import BuildOptions
-from .progressive import ProgressiveMesh, VertexSplits, apply_splits
+from .progressive import (
+    ProgressiveMesh,
+    VertexSplits,
+    WedgeSplits,
+    apply_splits,
+    apply_wedge_splits,
+)
 from .qpm import load
 from .simplify import build
 
@@ -27,8 +33,7 @@ def build_mesh(mesh: Mesh, options=None, progress=None) -> ProgressiveMesh:
     corner or per vertex), vertex colours and normals enter Hoppe's quadric with the
     weights of the options, travel with the levels (`ProgressiveMesh.lod_mesh`), and the
     texture image is kept. The name is kept in the metadata."""
-    pm = build(mesh.vertices, mesh.faces, options=options, progress=progress,
-               attributes_of=mesh)
+    pm = build(mesh.vertices, mesh.faces, options=options, progress=progress, attributes_of=mesh)
     if mesh.name:
         pm.metadata["name"] = mesh.name
     pm.texture = mesh.texture
@@ -45,7 +50,9 @@ __all__ = [
     "ProgressiveMesh",
     "QemError",
     "VertexSplits",
+    "WedgeSplits",
     "apply_splits",
+    "apply_wedge_splits",
     "build",
     "build_mesh",
     "encode_mesh",

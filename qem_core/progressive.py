@@ -28,6 +28,7 @@ import numpy as np
 from ._kernels.refine import apply_split_run
 from ._kernels.refine_wedges import apply_wedge_run
 from .attributes import AttributeLayout, corner_values_to_mesh
+from .codecs._images import image_media_type
 from .errors import CorruptFileError, InvalidOptionsError
 from .mesh import Mesh
 from .split_checks import (
@@ -265,6 +266,14 @@ class ProgressiveMesh:
         )
 
     # -- attributes ----------------------------------------------------------------
+    @property
+    def texture_type(self) -> str | None:
+        """The media type of ``texture`` ("image/png", "image/jpeg", else
+        "application/octet-stream"); None without a texture."""
+        if self.texture is None:
+            return None
+        return image_media_type(self.texture) or "application/octet-stream"
+
     @property
     def attribute_layout(self) -> AttributeLayout | None:
         """Which appearance attributes the levels carry; None for geometry only."""

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import qem_core
 from qem_core import codecs
+from qem_core import stream as split_stream
 
 from .storage import MeshRecord, Storage
 
@@ -86,8 +87,12 @@ class LodCache:
         level = pm.lod_mesh(n_vertices)  # with the appearance attributes, if any
         vertices, faces = level.vertices, level.faces
         # uint16 msgpack positions on the split stream's grid: 6 bytes a vertex, and the
-        # very integers the stream's deltas refer to, so a viewer refines it exactly.
-        grid = {"quantize_bits": 16, "grid_box": pm.position_bounds} if format == "msgpack" else {}
+        # very integers the stream's deltas refer to, so a viewer refines it exactly; the
+        # same for the wedges' values on the stream's attribute grid.
+        grid = {}
+        if format == "msgpack":
+            wedges = split_stream.quantised_wedges(pm, n_vertices)
+            grid = {"quantize_bits": 16, "grid_box": pm.position_bounds, "wedges": wedges}
         content = codecs.encode_mesh(vertices, faces, format, level.vertex_attributes,
                                      level.texture, level.corner_uvs, **grid)
         encoded = EncodedLod(

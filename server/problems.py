@@ -49,6 +49,7 @@ PROBLEM_KINDS: dict[str, tuple[int, str]] = {
     "unauthorized": (401, "A bearer token is required"),
     "forbidden": (403, "The bearer token is not valid"),
     "mesh-not-found": (404, "No such mesh"),
+    "texture-not-found": (404, "The mesh has no texture"),
     "mesh-not-ready": (409, "The mesh is not built yet"),
     "mesh-failed": (409, "The mesh could not be built"),
     "upload-too-large": (413, "The upload is too large"),

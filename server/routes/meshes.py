@@ -1,8 +1,10 @@
-"""/v1/meshes: upload, list, inspect, fetch levels and split streams, delete.
+"""/v1/meshes: upload, list, inspect, fetch levels, split streams and textures, delete.
 
-Levels and split streams of a built mesh never change (a .qpm key names one build), so
-their responses carry a strong ETag derived from the .qpm key, the level and the format,
-are cacheable for a year, and answer ``If-None-Match`` with 304 without loading anything.
+Levels, split streams and textures of a built mesh never change (a .qpm key names one
+build), so their responses carry a strong ETag derived from the .qpm key, the level and
+the format (and the split stream's version, whose frames and grids the msgpack levels
+and streams follow), are cacheable for a year, and answer ``If-None-Match`` with 304
+without loading anything.
 """
 
 from __future__ import annotations
@@ -204,7 +206,7 @@ def get_lod(
 ) -> Response:
     record = _find_ready(storage, mesh_id)
     n = _clamp(record, vertices)
-    etag = _etag(record, "lod", n, format)
+    etag = _etag(record, "lod", n, format, split_stream.STREAM_VERSION)
     if _matches(if_none_match, etag):
         return _not_modified(etag, {"X-Lod-Vertices": str(n)})
     lod = cache.lod(record, n, format)
@@ -260,7 +262,7 @@ def get_splits(
             f"from={n1} is above to={n2} (after clamping into [{record.n_base}, "
             f"{record.n_vertices}]); splits only refine, so ask for lod?vertices={n2}",
         )
-    etag = _etag(record, "splits", n1, n2)
+    etag = _etag(record, "splits", split_stream.STREAM_VERSION, n1, n2)
     headers = {"X-Splits-From": str(n1), "X-Splits-To": str(n2)}
     if _matches(if_none_match, etag):
         return _not_modified(etag, headers)
@@ -269,6 +271,43 @@ def get_splits(
         split_stream.encode_split_frames(pm, n1, n2),
         media_type=split_stream.MEDIA_TYPE,
         headers={"ETag": etag, "Cache-Control": IMMUTABLE, **headers},
+    )
+
+
+@router.get(
+    "/{mesh_id}/texture",
+    summary="The texture image of a mesh",
+    response_class=Response,
+    responses={
+        200: {
+            "description": "the image the mesh's UVs refer to, as uploaded (PNG or JPEG)",
+            "content": {"image/png": {}, "image/jpeg": {}},
+        },
+        304: {"description": "not modified (If-None-Match)"},
+        **problem_responses(404, 409),
+    },
+)
+def get_texture(
+    mesh_id: str,
+    storage: StorageDep,
+    cache: CacheDep,
+    if_none_match: Annotated[str | None, Header()] = None,
+) -> Response:
+    """The texture of a mesh uploaded with one (a GLB with its image): the image that
+    the UVs of every level refer to, also embedded in its GLB and msgpack levels. A 404
+    problem ``texture-not-found`` when the mesh has none (an OBJ upload does not bring
+    the image its material names)."""
+    record = _find_ready(storage, mesh_id)
+    etag = _etag(record, "texture")
+    if _matches(if_none_match, etag):
+        return _not_modified(etag, {})
+    pm = cache.progressive_mesh(record)
+    if pm.texture is None:
+        raise Problem("texture-not-found", f"mesh {mesh_id} has no texture image")
+    return Response(
+        pm.texture,
+        media_type=pm.texture_type,
+        headers={"ETag": etag, "Cache-Control": IMMUTABLE},
     )
 
 

@@ -398,17 +398,35 @@ function onRendered(levels) {
 
 // -- hooks for tests and benchmarks -----------------------------------------------------
 
+async function sha256(parts) {
+  const bytes = new Uint8Array(parts.reduce((n, part) => n + part.byteLength, 0));
+  let at = 0;
+  for (const part of parts) {
+    bytes.set(new Uint8Array(part.buffer, part.byteOffset, part.byteLength), at);
+    at += part.byteLength;
+  }
+  const digest = new Uint8Array(await crypto.subtle.digest("SHA-256", bytes));
+  return Array.from(digest, (b) => b.toString(16).padStart(2, "0")).join("");
+}
+
 async function levelDigest() {
   // SHA-256 of the level's positions as uint16 LE and faces as uint32 LE: equal to the
   // digest of the server's lod(level) in the msgpack form when the refinement is exact.
   const levels = view.levels;
   const positions = Uint16Array.from(levels.positions.subarray(0, 3 * levels.level));
-  const faces = levels.indices.slice(0, 3 * levels.nFaces);
-  const bytes = new Uint8Array(positions.byteLength + faces.byteLength);
-  bytes.set(new Uint8Array(positions.buffer), 0);
-  bytes.set(new Uint8Array(faces.buffer), positions.byteLength);
-  const digest = new Uint8Array(await crypto.subtle.digest("SHA-256", bytes));
-  return Array.from(digest, (b) => b.toString(16).padStart(2, "0")).join("");
+  return sha256([positions, levels.indices.subarray(0, 3 * levels.nFaces)]);
+}
+
+async function wedgeDigest() {
+  // SHA-256 of the level's corner wedges as uint32 LE and its wedges' grid values as
+  // uint16 LE: the digest of the `wedges` of the server's msgpack lod(level). Null
+  // without wedges.
+  const levels = view.levels;
+  const wedges = levels.wedges;
+  if (!wedges) return null;
+  const corners = Uint32Array.from(wedges.cornerWedge.subarray(0, 3 * levels.nFaces));
+  const count = wedges.wedgesAt(levels.level) * wedges.width;
+  return sha256([corners, Uint16Array.from(wedges.values.subarray(0, count))]);
 }
 
 window.qemViewer = {
@@ -428,10 +446,14 @@ window.qemViewer = {
       baseShownMs: view?.baseShownMs ?? null,
       streamedMs: view?.streamedMs ?? null,
       fullShownMs: view?.fullShownMs ?? null,
+      attributes: levels?.wedges?.grid.names ?? [], // appearance carried by the wedges
+      renderVertices: levels?.wedges?.render.count ?? null,
+      textureShown: scene?.textureShown ?? false,
     };
   },
   setLevel: setWant,
   levelDigest,
+  wedgeDigest,
 };
 
 // -- start ------------------------------------------------------------------------------

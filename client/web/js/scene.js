@@ -3,7 +3,10 @@
 //
 // Positions stay grid integers; the mesh's transform maps them to the model's units
 // (origin + q * step), centred on the grid box. Flat shading takes normals from screen
-// derivatives, so no normal buffer has to follow the level.
+// derivatives, so no normal buffer has to follow the level. A mesh with appearance
+// (levels.wedges) is drawn from its render vertices, one per (vertex, wedge) pair
+// (wedges.js), with its UVs and texture, vertex colours and, when it has them, its
+// normals (smooth shading).
 
 import * as THREE from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
@@ -52,18 +55,16 @@ export class MeshScene {
     this.clear();
     this.levels = levels;
     const geometry = new THREE.BufferGeometry();
-    const position = new THREE.BufferAttribute(levels.positions, 3);
-    position.setUsage(THREE.DynamicDrawUsage);
-    geometry.setAttribute("position", position);
-    const index = new THREE.BufferAttribute(levels.indices, 1);
-    index.setUsage(THREE.DynamicDrawUsage);
-    geometry.setIndex(index);
-    geometry.setDrawRange(0, 3 * levels.nFaces);
+    this.bindBuffers(geometry, levels);
+    const names = levels.wedges?.grid.names ?? [];
+    const textured = names.includes("uv") && levels.texture;
     const material = new THREE.MeshStandardMaterial({
-      color: 0xc9cdd6,
+      // White under a texture or vertex colours, which the colour would tint.
+      color: textured || names.includes("color") ? 0xffffff : 0xc9cdd6,
       roughness: 0.65,
       metalness: 0.0,
-      flatShading: true,
+      flatShading: !names.includes("normal"),
+      vertexColors: names.includes("color"),
       side: THREE.DoubleSide,
     });
     const mesh = new THREE.Mesh(geometry, material);
@@ -76,6 +77,8 @@ export class MeshScene {
     mesh.position.set(...origin.map((o, d) => o - (origin[d] + 0.5 * size[d])));
     this.scene.add(mesh);
     this.mesh = mesh;
+    this.textureShown = false;
+    if (textured) this.loadTexture(levels, material);
     this.camera.near = radius / 100;
     this.camera.far = radius * 100;
     this.camera.position.set(0, 0.2 * radius, 2.6 * radius);
@@ -85,10 +88,52 @@ export class MeshScene {
     this.changed();
   }
 
+  /** The geometry's attributes over the levels' buffers: positions and indices, or with
+   * wedges the render vertices' positions, attributes and indices. Called again when
+   * the render vertices' buffers were reallocated (they grow as pairs appear). */
+  bindBuffers(geometry, levels) {
+    const render = levels.wedges?.render;
+    const dynamic = (array, width) => {
+      const attribute = new THREE.BufferAttribute(array, width);
+      attribute.setUsage(THREE.DynamicDrawUsage);
+      return attribute;
+    };
+    if (geometry.getIndex()) geometry.dispose(); // frees the GL buffers of the old arrays
+    for (const name of Object.keys(geometry.attributes)) geometry.deleteAttribute(name);
+    geometry.setAttribute("position", dynamic(render ? render.positions : levels.positions, 3));
+    for (const [name, { array, width }] of Object.entries(render?.attributes ?? {})) {
+      geometry.setAttribute(name, dynamic(array, width));
+    }
+    geometry.setIndex(dynamic(render ? render.indices : levels.indices, 1));
+    geometry.setDrawRange(0, 3 * levels.nFaces);
+    this.generation = render?.generation;
+  }
+
+  /** The base mesh's texture image (the UVs' origin is bottom-left, as three.js's with
+   * its default flipY). Shown once decoded; the mesh is drawn without it meanwhile. */
+  loadTexture(levels, material) {
+    const url = URL.createObjectURL(new Blob([levels.texture.bytes], { type: levels.texture.type }));
+    new THREE.TextureLoader().load(
+      url,
+      (texture) => {
+        URL.revokeObjectURL(url);
+        if (this.levels !== levels) return texture.dispose();
+        texture.colorSpace = THREE.SRGBColorSpace;
+        material.map = texture;
+        material.needsUpdate = true;
+        this.textureShown = true;
+        this.changed();
+      },
+      undefined,
+      () => URL.revokeObjectURL(url), // a broken image: the mesh stays untextured
+    );
+  }
+
   clear() {
     if (!this.mesh) return;
     this.scene.remove(this.mesh);
     this.mesh.geometry.dispose();
+    this.mesh.material.map?.dispose();
     this.mesh.material.dispose();
     this.mesh = null;
     this.levels = null;
@@ -121,13 +166,17 @@ export class MeshScene {
     const levels = this.levels;
     if (this.mesh && this.dirty) {
       const geometry = this.mesh.geometry;
-      const position = geometry.getAttribute("position");
-      const index = geometry.getIndex();
+      const render = levels.wedges?.render;
+      if (render && render.generation !== this.generation) this.bindBuffers(geometry, levels);
       // Rows past the level are never drawn: upload the prefix only. Split records
       // touch scattered rows below it, so the whole prefix goes.
-      position.clearUpdateRanges();
-      position.addUpdateRange(0, 3 * levels.level);
-      position.needsUpdate = true;
+      const rows = render ? render.count : levels.level;
+      for (const attribute of Object.values(geometry.attributes)) {
+        attribute.clearUpdateRanges();
+        attribute.addUpdateRange(0, attribute.itemSize * rows);
+        attribute.needsUpdate = true;
+      }
+      const index = geometry.getIndex();
       index.clearUpdateRanges();
       index.addUpdateRange(0, 3 * levels.nFaces);
       index.needsUpdate = true;

@@ -18,6 +18,7 @@ from qem_core.stream import (
     encode_split_frames,
     grid_for,
     iter_frames,
+    quantised_wedges,
 )
 from tests.tiny_meshes import FIN, bumpy_grid, grid, icosphere, perforated_icosphere
 
@@ -180,9 +181,16 @@ def _frames(pm, n1=None, n2=None):
 
 
 def _fresh_decoder(pm, n=None):
+    """A decoder holding lod(n) (default: the base), with its wedges when it has some."""
     n = pm.n_base if n is None else n
     vertices, faces = pm.lod(n)
-    return SplitStreamDecoder(grid_for(pm).quantise(vertices), faces)
+    return SplitStreamDecoder(grid_for(pm).quantise(vertices), faces, quantised_wedges(pm, n))
+
+
+@pytest.fixture(params=["geometry", "wedges"])
+def any_pm(request, pm):
+    """The geometry-only mesh, then spot with its wedges (stream keys of both kinds)."""
+    return pm if request.param == "geometry" else request.getfixturevalue("spot_pm")
 
 
 def test_a_truncated_stream_is_refused(pm):
@@ -197,13 +205,14 @@ def test_a_frame_declaring_a_huge_length_is_refused_at_once():
         next(iter_frames([struct.pack("<I", 0xFFFFFFFF) + b"x"]))
 
 
-def test_every_flipped_byte_of_a_frame_is_refused_or_harmless(pm):
+def test_every_flipped_byte_of_a_frame_is_refused_or_harmless(any_pm):
     """zlib's Adler-32 and the frame's own checks catch a flipped byte, except where
     deflate ignores bits (padding of the last block): then the inflated frame is the same
     and so is the result. Never a wrong mesh, never another exception."""
+    pm = any_pm
     n2 = pm.n_base + 20
     payload = next(iter_frames(_frames(pm, pm.n_base, n2)))
-    expected_faces = pm.lod(n2)[1]
+    expected_faces, expected_wedges = pm.lod(n2)[1], quantised_wedges(pm, n2)
     refused = 0
     for position in range(len(payload)):
         damaged = bytearray(payload)
@@ -216,14 +225,16 @@ def test_every_flipped_byte_of_a_frame_is_refused_or_harmless(pm):
             continue
         assert zlib.decompress(bytes(damaged)) == zlib.decompress(payload)
         assert np.array_equal(decoder.faces, expected_faces)
+        if expected_wedges is not None:
+            assert np.array_equal(decoder.quantised_values, expected_wedges.values)
     assert refused > 0.95 * len(payload)
 
 
-def test_every_truncated_frame_is_refused(pm):
-    payload = next(iter_frames(_frames(pm, pm.n_base, pm.n_base + 20)))
+def test_every_truncated_frame_is_refused(any_pm):
+    payload = next(iter_frames(_frames(any_pm, any_pm.n_base, any_pm.n_base + 20)))
     for length in range(len(payload)):
         with pytest.raises(qem_core.CorruptFileError):
-            _fresh_decoder(pm).feed(payload[:length])
+            _fresh_decoder(any_pm).feed(payload[:length])
 
 
 def test_frames_out_of_order_or_for_another_level_are_refused(pm):

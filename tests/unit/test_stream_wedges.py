@@ -1,0 +1,310 @@
+"""The split stream's wedge side (version 3): splits n1 -> n2 carry the appearance, the
+stream refines the quantised wedges of lod(n1) into exactly those of lod(n2), and a
+damaged wedge field is refused with CorruptFileError (flipped bytes and truncations of
+frames with wedges: test_stream.py).
+"""
+
+import zlib
+
+import msgpack
+import numpy as np
+import pytest
+
+import qem_core
+from qem_core.codecs.msgpack_mesh import read_msgpack_wedges
+from qem_core.stream import (
+    SplitStreamDecoder,
+    encode_split_frames,
+    grid_for,
+    iter_frames,
+    quantised_wedges,
+    wedge_grid_for,
+)
+from tests.tiny_meshes import icosphere
+from tests.wedge_meshes import seamed_mesh
+
+
+@pytest.fixture(scope="module")
+def coloured_pm():
+    """A small sphere with seamed UVs, 8-bit colours and normals: every attribute."""
+    vertices, faces = icosphere(2, jitter=0.05, seed=4)
+    return qem_core.build_mesh(seamed_mesh(vertices, faces, seed=4, normals=True))
+
+
+def _decode(pm, n1, n2, **options):
+    """The stream n1 -> n2 decoded onto lod(n1) quantised, wedges included."""
+    vertices, faces = pm.lod(n1)
+    decoder = SplitStreamDecoder(grid_for(pm).quantise(vertices), faces, quantised_wedges(pm, n1))
+    for payload in iter_frames(encode_split_frames(pm, n1, n2, **options)):
+        decoder.feed(payload)
+    return decoder
+
+
+def _check_decoded(pm, decoder, n2):
+    """Integers bit for bit; the level's attributes within half a grid step."""
+    expected = quantised_wedges(pm, n2)
+    vertices, faces = pm.lod(n2)
+    assert np.array_equal(decoder.faces, faces)
+    assert np.array_equal(decoder.quantised, grid_for(pm).quantise(vertices))
+    assert np.array_equal(decoder.face_wedges, expected.face_wedges)
+    assert np.array_equal(decoder.quantised_values, expected.values)
+    scales = pm.attribute_layout.scales
+    decoded = pm.as_mesh(
+        vertices, faces, decoder.face_wedges, (decoder.wedge_values * scales).astype(np.float32)
+    )
+    exact = pm.lod_mesh(n2)
+    step = expected.grid.step
+    column = 0
+    for name, width in zip(expected.grid.names, expected.grid.widths, strict=True):
+        half = step[column : column + width] / 2 + 1e-6
+        column += width
+        if name == "uv" and pm.attribute_layout.corner_uvs:
+            error = np.abs(decoded.corner_uvs - exact.corner_uvs).reshape(-1, width)
+        else:
+            error = np.abs(decoded.vertex_attributes[name] - exact.vertex_attributes[name])
+        # A normal is a mean renormalised: its error may reach a whole step.
+        assert np.all(error <= (2 * half if name == "normal" else half)), name
+
+
+def _picks(pm, count=5):
+    return np.unique(np.linspace(pm.n_base, pm.n_full, count).astype(int)).tolist()
+
+
+# -- the split data --------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("fixture", ["spot_pm", "coloured_pm"])
+def test_splits_carry_the_wedges_so_lod_n1_refines_into_lod_n2(fixture, request):
+    pm = request.getfixturevalue(fixture)
+    for n1 in _picks(pm):
+        for n2 in _picks(pm):
+            if n1 > n2:
+                continue
+            splits = pm.splits(n1, n2)
+            vertices, faces = qem_core.apply_splits(*pm.lod(n1), splits)
+            face_wedges, values = qem_core.apply_wedge_splits(*pm.wedge_level(n1), splits)
+            expected_wedges, expected_values = pm.wedge_level(n2)
+            assert np.array_equal(face_wedges, expected_wedges)
+            assert np.array_equal(values, expected_values)
+            refined, exact = pm.as_mesh(vertices, faces, face_wedges, values), pm.lod_mesh(n2)
+            assert np.array_equal(refined.faces, exact.faces)
+            for name, column in exact.vertex_attributes.items():
+                assert np.array_equal(refined.vertex_attributes[name], column)
+            if exact.corner_uvs is not None:
+                assert np.array_equal(refined.corner_uvs, exact.corner_uvs)
+
+
+def test_wedge_splits_refuse_the_wrong_level_and_damaged_records(spot_pm):
+    n1, n2 = spot_pm.n_base + 100, spot_pm.n_base + 300
+    splits = spot_pm.splits(n1, n2)
+    face_wedges, values = spot_pm.wedge_level(n1)
+    with pytest.raises(qem_core.InvalidOptionsError, match="start from"):
+        qem_core.apply_wedge_splits(face_wedges[:-1], values, splits)
+    with pytest.raises(qem_core.InvalidOptionsError, match="start from"):
+        qem_core.apply_wedge_splits(face_wedges, values[:-1], splits)
+    geometry_only = qem_core.build(*icosphere(1))
+    with pytest.raises(qem_core.InvalidOptionsError, match="no wedges"):
+        qem_core.apply_wedge_splits(face_wedges, values, geometry_only.splits(12, 14))
+    w = splits.wedges
+    damaged = [
+        w._replace(relabel_to=w.relabel_to + 10**6),
+        w._replace(relabel_corners=w.relabel_corners * 0 - 1),
+        w._replace(update_ids=w.update_ids + 10**6),
+        w._replace(new_face_wedges=w.new_face_wedges[:-1]),
+        w._replace(new_offsets=w.new_offsets[::-1]),
+        w._replace(update_values=w.update_values[:, :1]),
+    ]
+    for wedges in damaged:
+        with pytest.raises(qem_core.CorruptFileError, match="inconsistent wedge"):
+            qem_core.apply_wedge_splits(face_wedges, values, splits._replace(wedges=wedges))
+    # Left alone, the inputs are not modified.
+    assert np.array_equal(face_wedges, spot_pm.wedge_level(n1)[0])
+
+
+# -- the stream ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("fixture", ["spot_pm", "coloured_pm"])
+def test_stream_refines_the_wedges_exactly(fixture, request):
+    pm = request.getfixturevalue(fixture)
+    for n1 in _picks(pm):
+        for n2 in _picks(pm):
+            if n1 < n2:
+                _check_decoded(pm, _decode(pm, n1, n2, splits_per_frame=300), n2)
+
+
+def test_colours_are_8_bit_on_the_grid_exactly(coloured_pm):
+    """Colours of the files are k / 255: the colour grid holds them without rounding."""
+    grid = wedge_grid_for(coloured_pm)
+    colour = grid.names.index("color")
+    column = sum(grid.widths[:colour])
+    assert grid.bits[colour] == 8
+    np.testing.assert_allclose(grid.origin[column : column + 3], 0.0)
+    np.testing.assert_allclose(grid.step[column : column + 3], 1 / 255)
+
+
+def test_symbols_are_mostly_zero_and_values_cost_what_the_bench_says(spot_pm):
+    """The predictions hold for most corners of spot (a figure, not a proof)."""
+    symbols = values = 0
+    n_symbols = n_nonzero = 0
+    for frame in encode_split_frames(spot_pm, spot_pm.n_base, spot_pm.n_full):
+        body = msgpack.unpackb(zlib.decompress(frame[4:]))
+        corners = np.frombuffer(body["wedge_corners"], np.uint8)
+        n_symbols += corners.size
+        n_nonzero += int(np.count_nonzero(corners))
+        symbols += len(zlib.compress(body["wedge_corners"], 9))
+        values += len(zlib.compress(body["wedge_values"], 9))
+    assert n_nonzero < 0.05 * n_symbols
+    assert symbols / spot_pm.n_splits < 1.0 and values / spot_pm.n_splits < 6.0
+
+
+def test_meshes_without_attributes_have_no_wedge_keys():
+    pm = qem_core.build(*icosphere(2, jitter=0.05, seed=1))
+    for frame in encode_split_frames(pm, pm.n_base, pm.n_full):
+        body = msgpack.unpackb(zlib.decompress(frame[4:]))
+        assert body["version"] == 3 and not any(key.startswith("wedge") for key in body)
+
+
+def test_a_decoder_without_wedges_refines_the_geometry_alone(spot_pm):
+    vertices, faces = spot_pm.lod(spot_pm.n_base)
+    decoder = SplitStreamDecoder(grid_for(spot_pm).quantise(vertices), faces)
+    for payload in iter_frames(encode_split_frames(spot_pm, spot_pm.n_base, spot_pm.n_full)):
+        decoder.feed(payload)
+    assert np.array_equal(decoder.faces, spot_pm.lod(spot_pm.n_full)[1])
+    assert decoder.face_wedges is None and decoder.wedge_values is None
+
+
+def test_a_served_msgpack_level_starts_a_decoder(spot_pm):
+    """lod(n1) as the server writes it (u16 positions, wedges) -> from_msgpack -> the
+    stream -> the wedges of lod(n2) written the same way, to the integer."""
+    n1, n2 = spot_pm.n_base + 50, spot_pm.n_full - 50
+
+    def served(n):
+        level = spot_pm.lod_mesh(n)
+        return qem_core.encode_mesh(
+            level.vertices, level.faces, "msgpack", level.vertex_attributes, level.texture,
+            level.corner_uvs, quantize_bits=16, grid_box=spot_pm.position_bounds,
+            wedges=quantised_wedges(spot_pm, n),
+        )  # fmt: skip
+
+    decoder = SplitStreamDecoder.from_msgpack(served(n1))
+    for payload in iter_frames(encode_split_frames(spot_pm, n1, n2)):
+        decoder.feed(payload)
+    expected = read_msgpack_wedges(served(n2))
+    assert np.array_equal(decoder.face_wedges, expected.face_wedges)
+    assert np.array_equal(decoder.quantised_values, expected.values)
+    assert (
+        expected.grid.names == ("uv",)
+        and read_msgpack_wedges(qem_core.encode_mesh(*spot_pm.lod(n1), "msgpack")) is None
+    )
+
+
+@pytest.mark.parametrize("change", [
+    lambda w: {**w, "grid": {**w["grid"], "bits": [17]}},
+    lambda w: {**w, "grid": {**w["grid"], "step": [0.0, 1.0]}},
+    lambda w: {**w, "corner_type": "u64"},
+    lambda w: {**w, "corners": w["corners"][:-1]},
+    lambda w: {**w, "corners": b"\xff" * len(w["corners"])},
+    lambda w: {**w, "values": w["values"][:-2]},
+    lambda w: {**w, "count": w["count"] + 1},
+    lambda w: "wedges",
+])  # fmt: skip
+def test_a_damaged_msgpack_wedges_entry_is_refused(spot_pm, change):
+    n = spot_pm.n_base + 20
+    blob = qem_core.encode_mesh(*spot_pm.lod(n), "msgpack", wedges=quantised_wedges(spot_pm, n))
+    message = msgpack.unpackb(blob)
+    message["wedges"] = change(message["wedges"])
+    with pytest.raises(qem_core.MeshFormatError):
+        read_msgpack_wedges(msgpack.packb(message))
+
+
+def test_values_off_their_grid_in_msgpack_are_refused(spot_pm):
+    n = spot_pm.n_base + 20
+    wedges = quantised_wedges(spot_pm, n)
+    wedges = wedges._replace(values=np.full_like(wedges.values, 4095 + 1))
+    blob = qem_core.encode_mesh(*spot_pm.lod(n), "msgpack", wedges=wedges)
+    with pytest.raises(qem_core.MeshFormatError, match="outside their grid"):
+        read_msgpack_wedges(blob)
+
+
+# -- damaged frames --------------------------------------------------------------------
+
+
+def _first_payload(pm, n2):
+    return next(iter_frames(encode_split_frames(pm, pm.n_base, n2)))
+
+
+def _fresh(pm):
+    vertices, faces = pm.lod(pm.n_base)
+    return SplitStreamDecoder(
+        grid_for(pm).quantise(vertices), faces, quantised_wedges(pm, pm.n_base)
+    )
+
+
+def _rewrite(payload, change):
+    body = msgpack.unpackb(zlib.decompress(payload))
+    return zlib.compress(msgpack.packb(change(body)))
+
+
+def _planes_u4(values):
+    return np.asarray(values, "<u4").view(np.uint8).reshape(-1, 4).T.tobytes()
+
+
+def _with(**fields):
+    return lambda body: {**body, **fields}
+
+
+def _field(key, transform):
+    return lambda body: {**body, key: transform(body[key])}
+
+
+@pytest.mark.parametrize("change", [
+    lambda body: {k: v for k, v in body.items() if not k.startswith("wedge")},
+    _with(wedge_grid="uv"),
+    _field("wedge_grid", lambda g: {**g, "bits": [0]}),
+    _field("wedge_grid", lambda g: {**g, "widths": [3]}),
+    _field("wedge_grid", lambda g: {**g, "step": [float("nan"), 1.0]}),
+    _with(wedges_from=1),
+    _with(wedges_from=-1),
+    _with(n_wedge_rows=10**6),
+    _with(n_wedge_backs=7),
+    _field("wedge_counts", lambda b: b[:-1]),
+    # Many new wedges for too few value rows: refused before anything is allocated.
+    _field("wedge_counts", lambda b: b"\xff" * len(b)),
+    _field("wedge_corners", lambda b: b[:-1]),
+    _field("wedge_corners", lambda b: b + b"\x00"),
+    _field("wedge_corners", lambda b: b"\xfe" * len(b)),
+    # An escape whose back-distance names no wedge, and one with no back-distance.
+    lambda body: {**body, "wedge_corners": b"\xff" + body["wedge_corners"][1:],
+                  "n_wedge_backs": 1, "wedge_backs": _planes_u4([2**31])},
+    lambda body: {**body, "wedge_corners": b"\xff" + body["wedge_corners"][1:]},
+    lambda body: {**body, "n_wedge_backs": 1, "wedge_backs": _planes_u4([1])},
+    _field("wedge_values", lambda b: b[:-1]),
+    # A residual that takes a value off its grid.
+    _field("wedge_values", lambda b: b"\xff" * len(b)),
+    _with(wedge_values=b"not planes"),
+])  # fmt: skip
+def test_a_frame_whose_wedges_lie_is_refused(spot_pm, change):
+    n2 = spot_pm.n_base + 40
+    payload = _first_payload(spot_pm, n2)
+    decoder = _fresh(spot_pm)
+    before = decoder.face_wedges.copy(), decoder.quantised_values.copy(), decoder.faces.copy()
+    with pytest.raises(qem_core.CorruptFileError):
+        decoder.feed(_rewrite(payload, change))
+    # A refused frame changes nothing: the good frame still applies.
+    assert np.array_equal(decoder.face_wedges, before[0])
+    assert np.array_equal(decoder.quantised_values, before[1])
+    assert np.array_equal(decoder.faces, before[2])
+    decoder.feed(payload)
+    _check_decoded(spot_pm, decoder, n2)
+
+
+def test_a_frame_for_another_wedge_count_is_refused(spot_pm):
+    frames = list(
+        iter_frames(
+            encode_split_frames(spot_pm, spot_pm.n_base, spot_pm.n_base + 40, splits_per_frame=20)
+        )
+    )
+    decoder = _fresh(spot_pm)
+    with pytest.raises(qem_core.CorruptFileError, match="refines"):
+        decoder.feed(frames[1])

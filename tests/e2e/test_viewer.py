@@ -2,12 +2,16 @@
 
 - ``refine.js`` run by node on a hand-drawn progressive mesh whose frames use every face
   code, then on a built one, moved down and up through every level: each level's grid
-  integers and faces must equal ``pm.lod(n)`` bit for bit.
+  integers and faces must equal ``pm.lod(n)`` bit for bit; on meshes with wedges (spot's
+  seams, a sphere with seams, colours and normals) its wedges too (``quantised_wedges``),
+  and every corner's render vertex names its vertex and wedge.
 - Headless Chromium (Debian's, driven by Playwright) on ``qem serve``: upload bunny.ply
   through the page, wait until the refinement reaches the server's vertex count, check
   the figures and the level's digest against the server's lod, move the slider down and
   up (the figures change at once, from data already held), and save a screenshot that
-  shows a render (not one colour).
+  shows a render (not one colour). Then spot as a GLB with its texture and
+  airplane_colored.ply: the wedges' digests against the server's levels, the texture
+  shown, a render in many colours.
 
 The browser test skips only where no Chromium can be found; ``.ci/run`` installs it.
 """
@@ -34,8 +38,15 @@ import pytest
 import qem_core
 from qem_core import codecs
 from qem_core.progressive import ProgressiveMesh
-from qem_core.stream import encode_split_frames, grid_for
+from qem_core.stream import (
+    SplitStreamDecoder,
+    encode_split_frames,
+    grid_for,
+    iter_frames,
+    quantised_wedges,
+)
 from tests.tiny_meshes import icosphere
+from tests.wedge_meshes import seamed_mesh
 
 from .conftest import REPO, shared_mesh
 
@@ -105,6 +116,18 @@ def pm_digest(pm: ProgressiveMesh, n: int) -> str:
     return level_digest(grid_for(pm).quantise(vertices), faces)
 
 
+def wedges_digest(face_wedges: np.ndarray, values: np.ndarray) -> str:
+    """SHA-256 of the corners' wedges as uint32 LE then the wedges' grid integers as
+    uint16 LE: what ``qemViewer.wedgeDigest()`` computes."""
+    data = np.asarray(face_wedges, "<u4").tobytes() + np.asarray(values, "<u2").tobytes()
+    return hashlib.sha256(data).hexdigest()
+
+
+def pm_wedges_digest(pm: ProgressiveMesh, n: int) -> str:
+    wedges = quantised_wedges(pm, n)
+    return wedges_digest(wedges.face_wedges, wedges.values)
+
+
 def served_digest(http: httpx.Client, url: str, n: int) -> tuple[str, int]:
     """Digest and face count of the server's lod(n) in the msgpack form."""
     response = http.get(f"{url}/lod", params={"vertices": n, "format": "msgpack"})
@@ -114,6 +137,14 @@ def served_digest(http: httpx.Client, url: str, n: int) -> tuple[str, int]:
     positions = np.frombuffer(message["positions"], "<u2")
     faces = np.frombuffer(message["indices"], index_dtype)
     return level_digest(positions, faces), int(response.headers["X-Lod-Faces"])
+
+
+def served_wedges_digest(http: httpx.Client, url: str, n: int) -> str:
+    """Digest of the wedges of the server's lod(n) in the msgpack form."""
+    response = http.get(f"{url}/lod", params={"vertices": n, "format": "msgpack"})
+    response.raise_for_status()
+    wedges = codecs.msgpack_mesh.read_msgpack_wedges(response.content)
+    return wedges_digest(wedges.face_wedges, wedges.values)
 
 
 # -- refine.js under node -----------------------------------------------------------------
@@ -149,15 +180,32 @@ try {
   console.log(JSON.stringify({ error: `${error.name}: ${error.message}`, held: levels.received }));
   process.exit(0);
 }
+const digest = (...arrays) => {
+  const hash = createHash("sha256");
+  for (const array of arrays) hash.update(new Uint8Array(array.buffer));
+  return hash.digest("hex");
+};
 const out = {};
 for (const n of plan.visit) {
   levels.setLevel(n);
   const positions = Uint16Array.from(levels.positions.subarray(0, 3 * levels.level));
   const faces = levels.indices.slice(0, 3 * levels.nFaces);
-  const hash = createHash("sha256");
-  hash.update(new Uint8Array(positions.buffer));
-  hash.update(new Uint8Array(faces.buffer));
-  out[n] = { level: levels.level, faces: levels.nFaces, digest: hash.digest("hex") };
+  out[n] = { level: levels.level, faces: levels.nFaces, digest: digest(positions, faces) };
+  const w = levels.wedges;
+  if (!w) continue;
+  const corners = Uint32Array.from(w.cornerWedge.subarray(0, 3 * levels.nFaces));
+  const values = Uint16Array.from(w.values.subarray(0, w.wedgesAt(levels.level) * w.width));
+  out[n].wedges = digest(corners, values);
+  // Every corner drawn from the render vertex of its (vertex, wedge), at its position.
+  const r = w.render;
+  let wrong = 0;
+  for (let c = 0; c < 3 * levels.nFaces; c++) {
+    const p = r.indices[c];
+    const v = levels.indices[c];
+    if (r.vertex[p] !== v || r.wedge[p] !== w.cornerWedge[c]) wrong++;
+    for (let d = 0; d < 3; d++) if (r.positions[3 * p + d] !== levels.positions[3 * v + d]) wrong++;
+  }
+  out[n].wrongRenderCorners = wrong;
 }
 console.log(JSON.stringify(out));
 """
@@ -175,8 +223,9 @@ def run_refine_js(
     require_web_packages()
     vertices, faces = pm.lod(pm.n_base)
     base = codecs.encode_mesh(
-        vertices, faces, "msgpack", quantize_bits=16, grid_box=pm.position_bounds
-    )
+        vertices, faces, "msgpack", quantize_bits=16, grid_box=pm.position_bounds,
+        wedges=quantised_wedges(pm, pm.n_base),
+    )  # fmt: skip
     (tmp_path / "base.msgpack").write_bytes(base)
     if stream is None:
         stream = b"".join(encode_split_frames(pm, pm.n_base, pm.n_full, splits_per_frame=2))
@@ -246,8 +295,83 @@ def test_refine_js_moves_down_and_up_through_every_level(tmp_path):
         assert levels[n] == {"level": n, "faces": pm.n_faces(n), "digest": pm_digest(pm, n)}
 
 
+@pytest.fixture(scope="module")
+def seamed_sphere_pm():
+    """A sphere with seamed UVs, 8-bit colours and normals: every attribute."""
+    vertices, faces = icosphere(2, jitter=0.05, seed=5)
+    return qem_core.build_mesh(seamed_mesh(vertices, faces, seed=5, normals=True))
+
+
+@pytest.fixture(scope="module")
+def spot_pm():
+    return qem_core.build_mesh(qem_core.load_mesh(REPO / "server" / "demo" / "spot.obj"))
+
+
+@pytest.mark.parametrize("fixture", ["spot_pm", "seamed_sphere_pm"])
+def test_refine_js_refines_wedges_exactly_down_and_up(tmp_path, fixture, request):
+    """refine.js and wedges.js agree with the Python decoder, which agrees with
+    quantised_wedges (tests/unit/test_stream_wedges.py): the wedges of every level
+    visited, going down and up, bit for bit."""
+    pm = request.getfixturevalue(fixture)
+    step = max(1, (pm.n_full - pm.n_base) // 40)
+    down = list(range(pm.n_full, pm.n_base - 1, -step)) + [pm.n_base]
+    visit = down + list(range(pm.n_base + 1, pm.n_full + 1, 2 * step + 1)) + [pm.n_full]
+    levels = run_refine_js(tmp_path, pm, visit)
+    for n in visit:
+        level = levels[n]
+        assert (level["level"], level["faces"], level["digest"]) == (
+            n,
+            pm.n_faces(n),
+            pm_digest(pm, n),
+        )
+        assert level["wedges"] == pm_wedges_digest(pm, n), n
+        assert level["wrongRenderCorners"] == 0
+
+
 def frame_of(payload: bytes) -> bytes:
     return struct.pack("<I", len(payload)) + payload
+
+
+def _rewritten(frame: bytes, change) -> bytes:
+    body = msgpack.unpackb(zlib.decompress(frame[4:]))
+    return frame_of(zlib.compress(msgpack.packb(change(body))))
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (
+            lambda body: {k: v for k, v in body.items() if not k.startswith("wedge")},
+            "WireFormatError: split frame carries no wedges",
+        ),
+        (lambda body: {**body, "wedges_from": 1}, "WireFormatError: frame refines 1 wedges"),
+        (
+            lambda body: {**body, "wedge_corners": b"\xfe" * len(body["wedge_corners"])},
+            "WireFormatError: split frame: a corner or update names a wedge",
+        ),
+        (
+            lambda body: {**body, "wedge_values": b"\xff" * len(body["wedge_values"])},
+            "WireFormatError: split frame: a wedge value leaves its grid",
+        ),
+        (
+            lambda body: {**body, "wedge_corners": body["wedge_corners"] + b"\x00"},
+            "WireFormatError: split frame: a field holds more than the splits use",
+        ),
+        (
+            lambda body: {**body, "wedge_grid": {**body["wedge_grid"], "bits": [11]}},
+            "WireFormatError: the split stream's wedge grid is not the base mesh's",
+        ),
+    ],
+    ids=["no-wedges", "other-wedge-count", "no-such-wedge", "off-grid", "long", "other-grid"],
+)
+def test_refine_js_refuses_damaged_wedge_frames(tmp_path, spot_pm, change, message):
+    frames = list(
+        encode_split_frames(spot_pm, spot_pm.n_base, spot_pm.n_full, splits_per_frame=200)
+    )
+    stream = frames[0] + _rewritten(frames[1], change) + b"".join(frames[2:])
+    answer = run_refine_js(tmp_path, spot_pm, [], stream=stream)
+    assert answer["error"].startswith(message), answer
+    assert answer["held"] == spot_pm.n_base + 200  # the first frame is kept
 
 
 @pytest.mark.parametrize(
@@ -369,4 +493,105 @@ def test_viewer_refines_to_the_full_mesh_and_slides_both_ways(server, tmp_path):
         stats = page.evaluate(_IMAGE_STATS, base64.b64encode(shot).decode())
         assert 0.02 < stats["away"] < 0.95, stats  # a shape, neither nothing nor all
         assert stats["colours"] > 16, stats  # shaded, not a flat fill
+        assert page.errors == []
+
+
+# -- appearance over HTTP and on screen ----------------------------------------------------
+
+
+def spot_glb() -> bytes:
+    """Spot (the demo copy) with its texture (the shared meshes' PNG), as a GLB: the way
+    a mesh brings its texture image to the server."""
+    spot = qem_core.load_mesh(REPO / "server" / "demo" / "spot.obj")
+    spot.texture = shared_mesh("spot_texture.png").read_bytes()
+    return codecs.write_mesh(spot, "glb")
+
+
+@pytest.fixture(scope="module")
+def appearance_meshes(server, tmp_path_factory):
+    """spot.glb (texture, seams) and airplane_colored.ply (vertex colours) uploaded with
+    the Python client, built: their metadata."""
+    spot = tmp_path_factory.mktemp("appearance") / "spot.glb"
+    spot.write_bytes(spot_glb())
+    with server.client() as qem:
+        return {
+            name: qem.wait_ready(qem.upload(path), timeout=READY_TIMEOUT_MS / 1000)
+            for name, path in (("spot", spot), ("airplane", shared_mesh("airplane_colored.ply")))
+        }
+
+
+def test_server_streams_wedges_that_refine_its_levels(server, appearance_meshes):
+    """The base level as msgpack and the version 3 stream, decoded by the Python
+    decoder, give the server's full level to the integer, wedges included; the texture
+    is served as the uploaded PNG."""
+    spot, airplane = appearance_meshes["spot"], appearance_meshes["airplane"]
+    with httpx.Client(timeout=60) as http:
+        for info in (spot, airplane):
+            url = f"{server.url}/v1/meshes/{info['id']}"
+            base = http.get(f"{url}/lod", params={"vertices": 1, "format": "msgpack"})
+            decoder = SplitStreamDecoder.from_msgpack(base.content)
+            with http.stream("GET", f"{url}/splits") as response:
+                assert response.headers["content-type"] == "application/x-qem-splits"
+                for payload in iter_frames(response.iter_bytes()):
+                    body = msgpack.unpackb(zlib.decompress(payload))
+                    assert body["version"] == 3 and "wedge_corners" in body
+                    decoder.feed(payload)
+            full = http.get(f"{url}/lod", params={"format": "msgpack"}).content
+            expected = codecs.msgpack_mesh.read_msgpack_wedges(full)
+            assert np.array_equal(decoder.face_wedges, expected.face_wedges)
+            assert np.array_equal(decoder.quantised_values, expected.values)
+            assert (
+                level_digest(decoder.quantised, decoder.faces)
+                == served_digest(http, url, info["vertices"])[0]
+            )
+        texture = http.get(f"{server.url}/v1/meshes/{spot['id']}/texture")
+        assert texture.status_code == 200 and texture.headers["content-type"] == "image/png"
+        assert texture.content == shared_mesh("spot_texture.png").read_bytes()
+        again = http.get(
+            f"{server.url}/v1/meshes/{spot['id']}/texture",
+            headers={"If-None-Match": texture.headers["etag"]},
+        )
+        assert again.status_code == 304
+        missing = http.get(f"{server.url}/v1/meshes/{airplane['id']}/texture")
+        assert missing.status_code == 404
+        assert missing.json()["type"] == "/problems/texture-not-found"
+
+
+def test_viewer_shows_texture_and_colours_while_it_refines(server, appearance_meshes, tmp_path):
+    require_web_packages()
+    with chromium_page(tmp_path / "profile") as page, httpx.Client(timeout=60) as http:
+        for name, attributes in (("spot", ["uv"]), ("airplane", ["color"])):
+            info = appearance_meshes[name]
+            url = f"{server.url}/v1/meshes/{info['id']}"
+            page.goto(f"{server.url}/#mesh={info['id']}")
+            page.wait_for_function(
+                "(id) => { const s = window.qemViewer?.state; return s?.id === id &&"
+                " s.level === s.full && s.fullShownMs !== null; }",
+                arg=info["id"],
+                timeout=READY_TIMEOUT_MS,
+            )
+            if name == "spot":
+                page.wait_for_function("() => window.qemViewer.state.textureShown")
+            state = page.evaluate("window.qemViewer.state")
+            assert state["attributes"] == attributes and state["failure"] is None
+            # The level on screen, down and up, is the server's, wedges included.
+            for n in (info["vertices"], info["vertices"] // 5, 100, info["vertices"] - 3):
+                page.evaluate("(n) => window.qemViewer.setLevel(n)", n)
+                assert (
+                    page.evaluate("window.qemViewer.levelDigest()")
+                    == served_digest(http, url, n)[0]
+                )
+                assert page.evaluate("window.qemViewer.wedgeDigest()") == served_wedges_digest(
+                    http, url, n
+                )
+            page.evaluate("() => new Promise((done) => requestAnimationFrame(() => done()))")
+            for overlay in ("#hud", "#controls"):
+                page.eval_on_selector(overlay, "node => { node.style.visibility = 'hidden'; }")
+            shot = page.locator("#canvas").screenshot(path=tmp_path / f"{name}.png")
+            stats = page.evaluate(_IMAGE_STATS, base64.b64encode(shot).decode())
+            assert 0.02 < stats["away"] < 0.95, stats
+            # The texture's black patches and the colour ramp give many colours.
+            assert stats["colours"] > 200, stats
+            for overlay in ("#hud", "#controls"):
+                page.eval_on_selector(overlay, "node => { node.style.visibility = ''; }")
         assert page.errors == []

@@ -1,15 +1,19 @@
-"""Size of the whole vertex-split stream against single-rate encodings (issue 3).
+"""Size of the whole vertex-split stream against single-rate encodings (issues 3 and 4).
 
     python -m bench.stream_size [--meshes spot.ply dragon.ply ...] [--bits 16]
         [--draco-levels 1 7 10] [--timeout S]
 
-For each mesh (default: all seven shared meshes), in a child process
-(`bench.measure.measure_in_child`): `qem_core.build`, then
+For each mesh (default: the seven shared meshes, and spot.obj with its UVs), in a child
+process (`bench.measure.measure_in_child`): `qem_core.build_mesh(qem_core.load_mesh(path))`
+as the server builds an upload (appearance attributes kept: spot.obj's UVs,
+airplane_colored.ply's colours), then
 
 - the split stream from the base mesh to the full mesh, `qem_core.stream.encode_split_frames`
-  on a --bits grid: total bytes (frame headers included), bytes per vertex split;
-- the base mesh as the quantised msgpack form (`qem_core.encode_mesh(..., "msgpack",
-  quantize_bits=bits, grid_box=pm.position_bounds)`), the first thing a client fetches;
+  on a --bits grid: total bytes (frame headers included), bytes per vertex split, and the
+  bytes its wedge keys add (the frames rewritten without them, deflated the same way, and
+  the difference taken);
+- the base mesh as the server's msgpack form (positions on the --bits grid, its
+  attributes and quantised wedges), the first thing a client fetches;
 - for reference, the full mesh in that same msgpack form (qem-lod's own single-rate).
 
 Beside it, in this process, the input with its unreferenced vertices dropped
@@ -17,8 +21,9 @@ Beside it, in this process, the input with its unreferenced vertices dropped
 and Draco single-rate (`DracoPy.encode`, quantization_bits=bits) at each --draco-levels
 compression level: 1 is DracoPy's default, 7 draco_encoder's, 10 the smallest.
 
-Ratios are of the whole download, base + stream, over each of them. Targets (issue 3):
-<= 10 bytes per split; long run: base + stream <= 1.5x Draco.
+Ratios are of the whole download, base + stream, over each of them (PLY and Draco hold
+positions and faces only). Targets (issue 3): <= 10 bytes per split of geometry (the
+stream without its wedge keys); long run: base + stream <= 1.5x Draco.
 
 Writes bench/results/stream-size.md (the meshes of this run) and merges each mesh's
 entry into bench/results/stream-size.json.
@@ -36,12 +41,7 @@ from pathlib import Path
 from typing import Any
 
 from . import qem_lod
-from .meshes import (
-    DEFAULT_MESH_FILES,
-    BenchMesh,
-    compact_referenced,
-    load_bench_mesh,
-)
+from .meshes import DEFAULT_MESH_FILES, compact_referenced
 from .report import format_ms, format_ratio, markdown_table
 from .runs import (
     bench_parser,
@@ -54,18 +54,27 @@ from .runs import (
     source_revision,
 )
 
-__all__ = ["main", "measure_stream_size", "stream_sizes"]
+__all__ = ["build_as_served", "main", "measure_stream_size", "stream_sizes"]
 
+# The shared meshes, and spot with its texture coordinates (seams: the UV wedges).
+DEFAULT_STREAM_MESHES = (*DEFAULT_MESH_FILES, "spot.obj")
 DEFAULT_BITS = 16
 DEFAULT_DRACO_LEVELS = (1, 7, 10)
 TARGET_BYTES_PER_SPLIT = 10.0
 TARGET_DRACO_FACTOR = 1.5
 
 
+def build_as_served(path: str):
+    """`qem_core.build_mesh` of a mesh file, appearance attributes kept (in the child)."""
+    import qem_core
+
+    return qem_core.build_mesh(qem_core.load_mesh(path))
+
+
 def stream_sizes(progressive_mesh, bits: int) -> dict[str, Any]:
     """In the child, on the built mesh: sizes of the split stream and msgpack forms."""
     import qem_core
-    from qem_core.stream import encode_split_frames
+    from qem_core.stream import encode_split_frames, quantised_wedges
 
     pm = progressive_mesh
     start = time.perf_counter()
@@ -74,10 +83,13 @@ def stream_sizes(progressive_mesh, bits: int) -> dict[str, Any]:
     frame_sizes = [len(frame) for frame in frames]
 
     def msgpack_bytes(n: int) -> int:
-        vertices, faces = pm.lod(n)
+        # As the server writes a level (server/lod_cache.py).
+        level = pm.lod_mesh(n)
         encoded = qem_core.encode_mesh(
-            vertices, faces, "msgpack", quantize_bits=bits, grid_box=pm.position_bounds
-        )
+            level.vertices, level.faces, "msgpack", level.vertex_attributes, level.texture,
+            level.corner_uvs, quantize_bits=bits, grid_box=pm.position_bounds,
+            wedges=quantised_wedges(pm, n),
+        )  # fmt: skip
         return len(encoded)
 
     return {
@@ -85,13 +97,31 @@ def stream_sizes(progressive_mesh, bits: int) -> dict[str, Any]:
         "n_base": pm.n_base,
         "n_splits": pm.n_splits,
         "faces_full": pm.n_faces_full,
+        "attributes": list(pm.attribute_layout.names) if pm.attribute_layout else [],
         "frames": len(frame_sizes),
         "stream_bytes": sum(frame_sizes),
+        "wedge_bytes": sum(frame_sizes) - sum(map(len, without_wedges(frames))),
         "stream_encode_s": encode_s,
         "field_bytes": field_bytes(frames),
         "base_msgpack_bytes": msgpack_bytes(pm.n_base),
         "full_msgpack_bytes": msgpack_bytes(pm.n_full),
     }
+
+
+def without_wedges(frames: Sequence[bytes]) -> list[bytes]:
+    """The frames with their wedge keys dropped, deflated as qem_core.stream does: the
+    geometry-only stream of the same splits."""
+    import msgpack
+
+    from qem_core.stream import _DEFLATE_LEVEL
+
+    stripped = []
+    for frame in frames:
+        body = msgpack.unpackb(zlib.decompress(frame[4:]))
+        geometry = {key: value for key, value in body.items() if not key.startswith("wedge")}
+        payload = zlib.compress(msgpack.packb(geometry), _DEFLATE_LEVEL)
+        stripped.append(len(payload).to_bytes(4, "little") + payload)
+    return stripped
 
 
 def field_bytes(frames: Sequence[bytes]) -> dict[str, int]:
@@ -112,12 +142,15 @@ def field_bytes(frames: Sequence[bytes]) -> dict[str, int]:
     return sizes
 
 
-def _single_rate_sizes(mesh: BenchMesh, bits: int, draco_levels: Sequence[int]) -> dict:
-    """Binary PLY and Draco of the input (referenced vertices only), with encode times."""
+def _single_rate_sizes(path: Path, bits: int, draco_levels: Sequence[int]) -> dict:
+    """Binary PLY and Draco of the input's positions and faces as qem-lod reads it
+    (referenced vertices only; an OBJ's UV seams do not split its vertices), with encode
+    times."""
     import DracoPy
 
     import qem_core
 
+    mesh = qem_core.load_mesh(path)
     vertices, faces = compact_referenced(mesh.vertices, mesh.faces)
     sizes: dict[str, Any] = {
         "input_vertices": int(len(vertices)),
@@ -136,23 +169,23 @@ def _single_rate_sizes(mesh: BenchMesh, bits: int, draco_levels: Sequence[int]) 
 
 
 def measure_stream_size(
-    mesh: BenchMesh, bits: int, draco_levels: Sequence[int], timeout_s: float | None
+    path: Path, bits: int, draco_levels: Sequence[int], timeout_s: float | None
 ) -> dict[str, Any]:
     """One mesh's JSON entry: stream, base, PLY and Draco sizes and their ratios."""
     built = measure_or_fail(
-        qem_lod.build_progressive_mesh,
-        (mesh.vertices, mesh.faces, {}),
+        build_as_served,
+        (str(path),),
         preload=("qem_core",),
         then=stream_sizes,
         then_args=(bits,),
         timeout_s=timeout_s,
     )
     entry: dict[str, Any] = {
-        "mesh": mesh.name,
+        "mesh": path.name,
         "measured_at": now(),
         "status": built.status,
         "bits": bits,
-        **_single_rate_sizes(mesh, bits, draco_levels),
+        **_single_rate_sizes(path, bits, draco_levels),
     }
     if not built.ok:
         return entry
@@ -161,6 +194,8 @@ def measure_stream_size(
     total = sizes["base_msgpack_bytes"] + sizes["stream_bytes"]
     entry["total_bytes"] = total
     entry["bytes_per_split"] = sizes["stream_bytes"] / max(1, sizes["n_splits"])
+    entry["wedge_bytes_per_split"] = sizes["wedge_bytes"] / max(1, sizes["n_splits"])
+    entry["geometry_bytes_per_split"] = entry["bytes_per_split"] - entry["wedge_bytes_per_split"]
     entry["ratios"] = {
         "total/ply": total / entry["ply_bytes"],
         "stream/ply": sizes["stream_bytes"] / entry["ply_bytes"],
@@ -171,7 +206,7 @@ def measure_stream_size(
         },
     }
     entry["targets"] = {
-        "bytes_per_split_met": entry["bytes_per_split"] <= TARGET_BYTES_PER_SPLIT,
+        "bytes_per_split_met": entry["geometry_bytes_per_split"] <= TARGET_BYTES_PER_SPLIT,
         **{
             f"draco{level}_met": entry["ratios"][f"total/draco{level}"] <= TARGET_DRACO_FACTOR
             for level in entry["draco"]
@@ -199,14 +234,19 @@ def write_stream_size_report(
         "",
         "Sizes do not depend on the load; only the encode times do.",
         "",
-        "Stream: `qem_core.stream.encode_split_frames(pm, n_base, n_full, "
-        f"{bits})`, every frame with its 4-byte length. Base: the base mesh as qem-lod's "
-        f"msgpack form, positions on the same {bits}-bit grid. Total = base + stream: the "
-        "whole download from nothing to the full mesh. Full msgpack: the full mesh in "
-        "that msgpack form (qem-lod's own single-rate, for reference). PLY and Draco "
-        "encode the input with its unreferenced vertices dropped; Draco "
-        f"`quantization_bits={bits}` at compression level L (1: DracoPy's default, 7: "
-        "draco_encoder's, 10: smallest). Sizes in bytes.",
+        "Each mesh is built as the server builds an upload, `qem_core.build_mesh`, which "
+        "keeps appearance attributes (spot.obj's UVs, airplane_colored.ply's colours; "
+        "spot.ply has none). Stream: `qem_core.stream.encode_split_frames(pm, n_base, "
+        f"n_full, {bits})`, every frame with its 4-byte length; its wedge keys (stream "
+        "version 3) carry the attributes: *wedge* is what they add (the frames deflated "
+        "without them, the difference taken), *geometry* the rest. Base: the base mesh "
+        f"as the server's msgpack form (positions on the same {bits}-bit grid, "
+        "attributes and quantised wedges). Total = base + stream: the whole download "
+        "from nothing to the full mesh. Full msgpack: the full mesh in that msgpack form "
+        "(qem-lod's own single-rate, for reference). PLY and Draco encode the input's "
+        "positions and faces (no attributes) with its unreferenced vertices dropped; "
+        f"Draco `quantization_bits={bits}` at compression level L (1: DracoPy's default, "
+        "7: draco_encoder's, 10: smallest). Sizes in bytes.",
         "",
     ]
     rows, per_vertex_rows = [], []
@@ -233,6 +273,8 @@ def write_stream_size_report(
             [
                 entry["mesh"],
                 f"{entry['bytes_per_split']:.2f}" if "bytes_per_split" in entry else "-",
+                _per_split(entry, "geometry_bytes_per_split"),
+                _per_split(entry, "wedge_bytes_per_split"),
                 _verdict(entry.get("targets", {}).get("bytes_per_split_met")),
                 f"{entry['ply_bytes'] / n_vertices:.2f}",
                 *(f"{draco[level]['bytes'] / n_vertices:.2f}" for level in levels),
@@ -263,7 +305,9 @@ def write_stream_size_report(
         [
             "mesh",
             "stream B / split",
-            f"<= {TARGET_BYTES_PER_SPLIT:g} B",
+            "geometry B / split",
+            "wedge B / split",
+            f"geometry <= {TARGET_BYTES_PER_SPLIT:g} B",
             "PLY B / V",
             *(f"Draco L{level} B / V" for level in levels),
             "stream encode ms",
@@ -271,7 +315,7 @@ def write_stream_size_report(
             "status",
         ],
         per_vertex_rows,
-        [False, True, False] + [True] * (2 + 2 * len(levels)) + [False],
+        [False, True, True, True, False] + [True] * (2 + 2 * len(levels)) + [False],
     )
     lines += ["", *_field_lines(entries)]
     lines += ["", "## Targets (issue 3)", "", *_target_lines(entries, levels), ""]
@@ -312,6 +356,14 @@ def _field_lines(entries: Sequence[dict[str, Any]]) -> list[str]:
     ]
 
 
+def _per_split(entry: dict[str, Any], key: str) -> str:
+    """A bytes-per-split figure; "-" when not measured, or for wedges when the mesh has
+    no attributes."""
+    if key not in entry or (key == "wedge_bytes_per_split" and not entry.get("attributes")):
+        return "-"
+    return f"{entry[key]:.2f}"
+
+
 def _verdict(met: bool | None) -> str:
     return "-" if met is None else ("met" if met else "not met")
 
@@ -325,12 +377,23 @@ def _target_lines(entries: Sequence[dict[str, Any]], levels: Sequence[str]) -> l
         names = [entry["mesh"] for entry in measured if entry["targets"].get(key)]
         return f"{len(names)} of {len(measured)}" + (f" ({', '.join(names)})" if names else "")
 
-    per_split = [entry["bytes_per_split"] for entry in measured]
+    per_split = [entry["geometry_bytes_per_split"] for entry in measured]
     lines = [
-        f"- <= {TARGET_BYTES_PER_SPLIT:g} bytes per split: met on "
+        f"- <= {TARGET_BYTES_PER_SPLIT:g} bytes per split of geometry: met on "
         f"{meeting('bytes_per_split_met')} meshes; from {min(per_split):.2f} to "
         f"{max(per_split):.2f} B per split.",
     ]
+    with_wedges = [entry for entry in measured if entry.get("attributes")]
+    if with_wedges:
+        lines.append(
+            "- appearance (issue 4): the wedge keys add "
+            + ", ".join(
+                f"{entry['wedge_bytes_per_split']:.2f} B per split to {entry['mesh']} "
+                f"({'/'.join(entry['attributes'])})"
+                for entry in with_wedges
+            )
+            + "."
+        )
     for level in levels:
         ratios = [entry["ratios"][f"total/draco{level}"] for entry in measured]
         lines.append(
@@ -343,7 +406,7 @@ def _target_lines(entries: Sequence[dict[str, Any]], levels: Sequence[str]) -> l
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = bench_parser("python -m bench.stream_size", __doc__)
-    parser.add_argument("--meshes", nargs="+", default=list(DEFAULT_MESH_FILES))
+    parser.add_argument("--meshes", nargs="+", default=list(DEFAULT_STREAM_MESHES))
     parser.add_argument("--bits", type=int, default=DEFAULT_BITS, help="grid bits per axis")
     parser.add_argument("--draco-levels", type=int, nargs="+", default=list(DEFAULT_DRACO_LEVELS))
     arguments = list(sys.argv[1:] if argv is None else argv)
@@ -362,12 +425,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     }
     entries = []
     for name in args.meshes:
-        mesh = load_bench_mesh(args.mesh_dir / name)
-        entry = measure_stream_size(mesh, args.bits, args.draco_levels, args.timeout)
+        entry = measure_stream_size(
+            args.mesh_dir / name, args.bits, args.draco_levels, args.timeout
+        )
         entries.append(entry)
         progress(
             f"{name}: {entry['status']}, stream {_count(entry.get('stream_bytes'))} B, "
-            f"{entry.get('bytes_per_split', float('nan')):.2f} B/split, PLY "
+            f"{entry.get('bytes_per_split', float('nan')):.2f} B/split (wedges "
+            f"{entry.get('wedge_bytes_per_split', float('nan')):.2f}), PLY "
             f"{_count(entry['ply_bytes'])} B, Draco "
             + ", ".join(f"L{lv} {_count(d['bytes'])} B" for lv, d in entry["draco"].items())
         )

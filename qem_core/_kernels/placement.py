@@ -10,6 +10,12 @@ the endpoints and the midpoint and the cheapest of the four wins.
 Eigenvalues come in closed form (Smith 1961); only the eigenvector that is well separated
 from the others is ever needed (the flat one for a cylinder, the dominant one for a
 plane), and it is the null vector of A - λI, taken from a cross product of its rows.
+
+Most contractions, once a few have merged planes of different directions, are clearly
+well conditioned, and need no eigenvalue: ``clearly_well_conditioned`` proves from the
+trace, minors and determinant (no arccos, no cos) that the eigenvalues would pass the
+tolerance test, with a margin wider than their rounding, so the branch taken, and every
+bit of the result, are those the eigenvalues would give.
 """
 
 import numba
@@ -95,6 +101,41 @@ def _solve3(a00, a01, a02, a11, a12, a22, gx, gy, gz):
 
 solve3 = numba.njit(cache=True)(_solve3)
 
+# How far eigenvalues3's results may lie from the exact eigenvalues, as a fraction of the
+# trace. Rounding moves r by ~1e-14 (r^3 / p^3 scaled), and arccos near +-1 turns that
+# into ~sqrt of it: the worst case over p is ~3.4e-5 of the trace. Three times that.
+EIGENVALUE_SLACK = 1e-4
+# Relative rounding allowed for the trace, minors and determinant (a few ulps: 1e-12).
+ROUNDING_SLACK = 1e-12
+
+
+def _clearly_well_conditioned(a00, a01, a02, a11, a12, a22, rank_tolerance):
+    """True only if ``eigenvalues3`` of A would give largest > 0 and smallest >
+    rank_tolerance * largest, decided without computing them (False: don't know).
+
+    With trace T > 0, sum of principal 2x2 minors M > 0 and determinant D > 0, all
+    eigenvalues are positive (the characteristic polynomial's coefficients alternate),
+    so largest < T and smallest = D / (largest * middle) > D / M. The test asks
+    D / M > (rank_tolerance + 2 EIGENVALUE_SLACK) T, each of D, M, T taken at the
+    unfavourable end of its rounding, and T within [1e-90, 1e90] so that T^3 neither
+    underflows nor overflows.
+    """
+    trace = a00 + a11 + a22
+    if not (1e-90 < trace < 1e90):
+        return False
+    c00 = a11 * a22 - a12 * a12
+    minors = c00 + (a00 * a22 - a02 * a02) + (a00 * a11 - a01 * a01)
+    det = a00 * c00 - a01 * (a01 * a22 - a12 * a02) + a02 * (a01 * a12 - a11 * a02)
+    minors_error = ROUNDING_SLACK * trace * trace
+    det_low = det - minors_error * trace
+    if not (minors > minors_error and det_low > 0.0):
+        return False
+    bound = (rank_tolerance + 2.0 * EIGENVALUE_SLACK) * trace
+    return det_low > (minors + minors_error) * bound
+
+
+clearly_well_conditioned = numba.njit(cache=True, inline="always")(_clearly_well_conditioned)
+
 
 def _minimise_near(quadric, mx, my, mz, rank_tolerance, out):
     """The minimiser of ``quadric`` closest to m = (mx, my, mz), written to out (3,)."""
@@ -105,11 +146,15 @@ def _minimise_near(quadric, mx, my, mz, rank_tolerance, out):
     gy = a01 * mx + a11 * my + a12 * mz + quadric[7]
     gz = a02 * mx + a12 * my + a22 * mz + quadric[8]
     out[0], out[1], out[2] = mx, my, mz
-    largest, middle, smallest = eigenvalues3(a00, a01, a02, a11, a12, a22)
-    if largest <= 0.0:
-        return
-    floor = rank_tolerance * largest
-    if smallest > floor:
+    largest = middle = smallest = floor = 0.0
+    invertible = clearly_well_conditioned(a00, a01, a02, a11, a12, a22, rank_tolerance)
+    if not invertible:
+        largest, middle, smallest = eigenvalues3(a00, a01, a02, a11, a12, a22)
+        if largest <= 0.0:
+            return
+        floor = rank_tolerance * largest
+        invertible = smallest > floor
+    if invertible:
         sx, sy, sz = solve3(a00, a01, a02, a11, a12, a22, gx, gy, gz)
     elif middle > floor:
         # A cylinder: one flat direction u. Remove g's component along u and solve with

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from qem_core._kernels.placement import eigenvalues3, minimise_near
+from qem_core._kernels.placement import clearly_well_conditioned, eigenvalues3, minimise_near
 from tests import reference
 
 RANK_TOLERANCE = 1e-3
@@ -53,3 +53,40 @@ def test_closed_form_eigenvalues():
         a = b @ b.T
         got = eigenvalues3(a[0, 0], a[0, 1], a[0, 2], a[1, 1], a[1, 2], a[2, 2])
         np.testing.assert_allclose(sorted(got), np.linalg.eigvalsh(a), rtol=1e-7, atol=1e-9)
+
+
+def _psd_near_the_tolerance(rng, n, degenerate):
+    """Random symmetric matrices with smallest / largest eigenvalue near RANK_TOLERANCE,
+    at scales from 1e-80 to 1e80; ``degenerate`` makes the two smallest (or the two
+    largest) nearly equal, where arccos is worst conditioned."""
+    smallest = RANK_TOLERANCE * rng.uniform(0.5, 2.0, n)
+    middle = rng.uniform(smallest, 1.0)
+    if degenerate == "low":
+        middle = smallest * (1 + 10.0 ** rng.uniform(-16, -4, n))
+    elif degenerate == "high":
+        middle = 1 - 10.0 ** rng.uniform(-16, -4, n)
+    rotations, _ = np.linalg.qr(rng.normal(size=(n, 3, 3)))
+    eigenvalues = np.stack([np.ones(n), middle, smallest], axis=1)
+    scale = 10.0 ** rng.uniform(-80, 80, n)
+    return np.einsum("nij,nj,nkj->nik", rotations, eigenvalues, rotations) * scale[:, None, None]
+
+
+@pytest.mark.parametrize("degenerate", [None, "low", "high"])
+def test_the_well_conditioned_shortcut_never_disagrees_with_the_eigenvalues(degenerate):
+    """The shortcut may only say yes where eigenvalues3 passes the tolerance test (else
+    the branch, and the levels, would change); and it does say yes when clear."""
+    rng = np.random.default_rng(7)
+    said_yes = 0
+    for a in _psd_near_the_tolerance(rng, 3000, degenerate):
+        entries = (a[0, 0], a[0, 1], a[0, 2], a[1, 1], a[1, 2], a[2, 2])
+        largest, _, smallest = eigenvalues3(*entries)
+        if clearly_well_conditioned(*entries, RANK_TOLERANCE):
+            said_yes += 1
+            assert largest > 0.0 and smallest > RANK_TOLERANCE * largest
+    assert said_yes > 0 or degenerate is not None
+    rotations, _ = np.linalg.qr(rng.normal(size=(100, 3, 3)))
+    for rotation, low, scale in zip(rotations, rng.uniform(0.05, 1, 100),
+                                    10.0 ** rng.uniform(-80, 80, 100), strict=True):
+        a = rotation @ np.diag([1.0, 1.0, low]) @ rotation.T * scale
+        assert clearly_well_conditioned(a[0, 0], a[0, 1], a[0, 2], a[1, 1], a[1, 2], a[2, 2],
+                                        RANK_TOLERANCE)

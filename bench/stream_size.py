@@ -77,6 +77,8 @@ def stream_sizes(progressive_mesh, bits: int) -> dict[str, Any]:
     from qem_core.stream import encode_split_frames, quantised_wedges
 
     pm = progressive_mesh
+    # A few splits first, untimed: numba compiles (or loads) the coding kernels.
+    list(encode_split_frames(pm, pm.n_base, min(pm.n_full, pm.n_base + 8), bits))
     start = time.perf_counter()
     frames = list(encode_split_frames(pm, pm.n_base, pm.n_full, bits))
     encode_s = time.perf_counter() - start

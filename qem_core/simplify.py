@@ -21,6 +21,13 @@ from ._kernels.appearance import (
     fill_wedge_quadrics,
     wedge_row_size,
 )
+from ._kernels.assemble import (
+    fill_splits,
+    gather_reversed_runs,
+    level_corners,
+    number_slots,
+    order_faces,
+)
 from ._kernels.contract import (
     N_PARAMS,
     PARAM_COS_STEP_TURN,
@@ -286,47 +293,51 @@ def assemble_progressive_mesh(run: ContractionRun, metadata: dict) -> Progressiv
     0..n_base-1, and the vertex retired by contraction j is introduced by split J-1-j.
     A survivor keeps its number, so a slot's level number never changes.
     """
-    record, cx, j_count = run
-    base_slots = np.flatnonzero(cx.vertex_alive)
-    level_of_slot = _level_of_slot(run)
+    return _assemble(run, metadata)[0]
 
-    killed_end = record.killed_end[:j_count]
-    n_killed = int(killed_end[-1]) if j_count else 0
-    base_faces = np.flatnonzero(cx.face_alive)
+
+def _assemble(run: ContractionRun, metadata: dict) -> tuple[ProgressiveMesh, np.ndarray]:
+    """`assemble_progressive_mesh`, and the level number of each slot (`_level_of_slot`)."""
+    record, cx, j_count = run
+    level_of_slot = _level_of_slot(run)
+    m = cx.faces.shape[0]
     # Faces in order of appearance: the base, then those killed by the last contraction
     # (born at split 0), and so on back to the first.
-    face_order = np.zeros(base_faces.size + n_killed, np.int64)
-    face_order[: base_faces.size] = base_faces
-    reverse_runs(record.killed, killed_end, j_count, face_order[base_faces.size :])
-    level_of_face = np.full(cx.faces.shape[0], -1, np.int64)
-    level_of_face[face_order] = np.arange(face_order.size)
-    born_per_split = np.diff(killed_end, prepend=0)[::-1]
-    level_faces = np.concatenate([[base_faces.size], base_faces.size + np.cumsum(born_per_split)])
+    n_killed = int(record.killed_end[j_count - 1]) if j_count else 0
+    face_order = np.zeros(int(np.count_nonzero(cx.face_alive)) + n_killed, np.int64)
+    level_of_face = np.full(m, -1, np.int64)
+    n_base_faces = order_faces(cx.face_alive, record.killed, record.killed_end, j_count,
+                               face_order, level_of_face)
+    face_corners = np.zeros((face_order.size, 3), np.int32)
+    level_corners(cx.faces, level_of_face, level_of_slot, face_corners)
 
-    relabel_end = record.relabel_end[:j_count]
-    relabelled = np.zeros(int(relabel_end[-1]) if j_count else 0, np.int32)
-    reverse_runs(record.relabel, relabel_end, j_count, relabelled)
-    relabel_faces = level_of_face[relabelled]
-    relabel_offsets = np.concatenate([[0], np.cumsum(np.diff(relabel_end, prepend=0)[::-1])])
+    relabel_faces = np.zeros(int(record.relabel_end[j_count - 1]) if j_count else 0, np.int32)
+    relabel_offsets = np.zeros(j_count + 1, np.int64)
+    gather_reversed_runs(record.relabel, record.relabel_end, j_count, level_of_face,
+                         relabel_faces, relabel_offsets)
 
-    reversed_j = np.arange(j_count - 1, -1, -1)
-    split_positions = np.stack(
-        [record.position_a[reversed_j], record.position_b[reversed_j]], axis=1
-    )
+    split_vertex = np.zeros(j_count, np.int32)
+    split_positions = np.zeros((j_count, 2, 3))
+    split_cost = np.zeros(j_count)
+    level_faces = np.zeros(j_count + 1, np.int64)
+    fill_splits(record.a, record.position_a, record.position_b, record.cost,
+                record.killed_end, j_count, level_of_slot, n_base_faces, split_vertex,
+                split_positions, split_cost, level_faces)
     wedge_arrays = (_wedge_splits(run, face_order, level_of_face)
                     if cx.wedge_values.shape[0] else {})
-    return ProgressiveMesh(
-        base_vertices=np.ascontiguousarray(cx.vertices[base_slots]),
-        split_vertex=level_of_slot[record.a[reversed_j]].astype(np.int32),
-        split_positions=np.ascontiguousarray(split_positions),
-        face_corners=level_of_slot[cx.faces[face_order]].astype(np.int32),
-        level_faces=level_faces.astype(np.int64),
-        relabel_offsets=relabel_offsets.astype(np.int64),
-        relabel_faces=relabel_faces.astype(np.int32),
-        split_cost=np.ascontiguousarray(record.cost[reversed_j]),
+    pm = ProgressiveMesh(
+        base_vertices=np.ascontiguousarray(cx.vertices[cx.vertex_alive.astype(bool)]),
+        split_vertex=split_vertex,
+        split_positions=split_positions,
+        face_corners=face_corners,
+        level_faces=level_faces,
+        relabel_offsets=relabel_offsets,
+        relabel_faces=relabel_faces,
+        split_cost=split_cost,
         metadata=metadata,
         **wedge_arrays,
     )
+    return pm, level_of_slot
 
 
 def _reversed_run_rows(ends: np.ndarray, j_count: int) -> tuple[np.ndarray, np.ndarray]:
@@ -422,9 +433,8 @@ def build(
     }
     if wedges is not None:
         metadata["attributes"] = wedges.layout.to_dict()
-    pm = assemble_progressive_mesh(run, metadata)
+    pm, level_of_slot = _assemble(run, metadata)
     # For each input vertex, its level number (-1 if dropped by preparation).
-    level_of_slot = _level_of_slot(run)
     pm.vertex_map = np.where(
         prepared.vertex_map >= 0, level_of_slot[np.maximum(prepared.vertex_map, 0)], -1
     ).astype(np.int32)
@@ -436,9 +446,6 @@ def build(
 def _level_of_slot(run: ContractionRun) -> np.ndarray:
     """(n,) int32: the level number of each slot of the run (its place in refinement)."""
     record, cx, j_count = run
-    base_slots = np.flatnonzero(cx.vertex_alive)
     level_of_slot = np.full(cx.vertices.shape[0], -1, np.int32)
-    level_of_slot[base_slots] = np.arange(base_slots.size, dtype=np.int32)
-    retired = record.b[:j_count][::-1]
-    level_of_slot[retired] = base_slots.size + np.arange(j_count, dtype=np.int32)
+    number_slots(cx.vertex_alive, record.b, j_count, level_of_slot)
     return level_of_slot

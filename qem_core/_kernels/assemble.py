@@ -1,0 +1,100 @@
+"""The contraction record reversed into levels: the arrays of the progressive mesh.
+
+Contraction j of J retires slot b_j; split k = J-1-j brings it back. Each kernel is one
+pass over the record (numpy's chain of fancy-indexed gathers, reversals and cumulative
+sums took 0.3 s on a 435k-contraction record):
+
+    level_of_slot   survivors in slot order 0..n_base-1, then b_{J-1}, b_{J-2}, ..., b_0
+    face_order      alive faces in id order, then the faces killed by contraction J-1
+                    (born at split 0), then by J-2, ...; each run in its recorded order
+    level_of_face   the inverse of face_order
+"""
+
+import numba
+
+
+def _number_slots(vertex_alive, retired, n_contractions, level_of_slot):
+    """level_of_slot (n,) int32 (-1 filled), out; returns the number of survivors."""
+    n_base = 0
+    for v in range(vertex_alive.shape[0]):
+        if vertex_alive[v]:
+            level_of_slot[v] = n_base
+            n_base += 1
+    for j in range(n_contractions):
+        level_of_slot[retired[j]] = n_base + n_contractions - 1 - j
+    return n_base
+
+
+number_slots = numba.njit(cache=True)(_number_slots)
+
+
+def _order_faces(face_alive, killed, killed_end, n_contractions, face_order, level_of_face):
+    """face_order (alive + killed,) int64 and level_of_face (m,) int64, out (see the
+    module docstring); returns the number of alive (base) faces."""
+    n = 0
+    for f in range(face_alive.shape[0]):
+        if face_alive[f]:
+            face_order[n] = f
+            n += 1
+    n_base = n
+    for j in range(n_contractions - 1, -1, -1):
+        for i in range(killed_end[j - 1] if j > 0 else 0, killed_end[j]):
+            face_order[n] = killed[i]
+            n += 1
+    for i in range(n):
+        level_of_face[face_order[i]] = i
+    return n_base
+
+
+order_faces = numba.njit(cache=True)(_order_faces)
+
+
+def _level_corners(faces, level_of_face, level_of_slot, out):
+    """out[level_of_face[f]] = level numbers of the corners of face f (as the run left
+    it). Faces are read in id order, whose corners lie close together in level_of_slot:
+    gathering them in level order was twice as slow."""
+    for f in range(faces.shape[0]):
+        row = level_of_face[f]
+        if row >= 0:
+            for k in range(3):
+                out[row, k] = level_of_slot[faces[f, k]]
+
+
+level_corners = numba.njit(cache=True)(_level_corners)
+
+
+def _gather_reversed_runs(values, ends, n_runs, lookup, out, offsets):
+    """out = lookup[values] with the runs ending at ends[:n_runs] in reverse order (each
+    run's own order kept); offsets (n_runs + 1,) out: where each reversed run starts."""
+    cursor = 0
+    offsets[0] = 0
+    for k in range(n_runs):
+        j = n_runs - 1 - k
+        for i in range(ends[j - 1] if j > 0 else 0, ends[j]):
+            out[cursor] = lookup[values[i]]
+            cursor += 1
+        offsets[k + 1] = cursor
+
+
+gather_reversed_runs = numba.njit(cache=True)(_gather_reversed_runs)
+
+
+def _fill_splits(survivor, position_a, position_b, cost, killed_end, n_contractions,
+                 level_of_slot, n_base_faces, split_vertex, split_positions, split_cost,
+                 level_faces):
+    """Split k from contraction J-1-k: its vertex s (the survivor's level number), the
+    positions of s and t before the contraction, its cost, and level_faces (J + 1,), the
+    face count of each level (split k appends the faces contraction J-1-k killed)."""
+    level_faces[0] = n_base_faces
+    for k in range(n_contractions):
+        j = n_contractions - 1 - k
+        split_vertex[k] = level_of_slot[survivor[j]]
+        for d in range(3):
+            split_positions[k, 0, d] = position_a[j, d]
+            split_positions[k, 1, d] = position_b[j, d]
+        split_cost[k] = cost[j]
+        born = killed_end[j] - (killed_end[j - 1] if j > 0 else 0)
+        level_faces[k + 1] = level_faces[k] + born
+
+
+fill_splits = numba.njit(cache=True)(_fill_splits)

@@ -8,6 +8,8 @@ before the contraction loop starts.
 import numba
 import numpy as np
 
+LOW_32_BITS = (1 << 32) - 1
+
 
 def _first_equal_rows(rows, first):
     """first[i] = the smallest j with rows[j] == rows[i] (row by row, exactly).
@@ -47,6 +49,22 @@ def _first_equal_rows(rows, first):
 first_equal_rows = numba.njit(cache=True)(_first_equal_rows)
 
 
+def _sorted_corner_keys(faces, rows, keys):
+    """keys[i] = the corners of face rows[i] as a set: (low << 32 | middle, high).
+
+    faces : (m, 3) int32; rows : (r,) int64; keys : (r, 2) uint64, out."""
+    for i in range(rows.shape[0]):
+        a, b, c = faces[rows[i], 0], faces[rows[i], 1], faces[rows[i], 2]
+        low = min(a, b, c)
+        high = max(a, b, c)
+        middle = a ^ b ^ c ^ low ^ high
+        keys[i, 0] = (np.uint64(low) << np.uint64(32)) | np.uint64(middle)
+        keys[i, 1] = np.uint64(high)
+
+
+sorted_corner_keys = numba.njit(cache=True)(_sorted_corner_keys)
+
+
 def _find_edges(faces, n_vertices, face_edge, edges, edge_face_count, edge_side):
     """Number the undirected edges of ``faces`` in (low, high) order; returns their count E.
 
@@ -57,44 +75,44 @@ def _find_edges(faces, n_vertices, face_edge, edges, edge_face_count, edge_side)
     edge_side : (>= E,) int64 out: the last side (3 f + k) on each edge.
 
     A counting sort by low end, then an insertion sort of each low end's few sides by
-    high end: O(m), and no (3m,) int64 key array to sort.
+    high end: O(m), and no (3m,) int64 key array to sort. Each side is one int64,
+    high << 32 | side, so the insertion moves one array (two, high and side apart, cost
+    a third more) and keeps the sides of an edge in side order.
     """
-    n_sides = 3 * faces.shape[0]
+    n_faces = faces.shape[0]
     bucket = np.zeros(n_vertices + 1, np.int64)
-    for s in range(n_sides):
-        f, k = s // 3, s % 3
-        u, v = faces[f, k], faces[f, (k + 1) % 3]
-        bucket[min(u, v) + 1] += 1
+    for f in range(n_faces):
+        for k in range(3):
+            u, v = faces[f, k], faces[f, (k + 1) % 3]
+            bucket[min(u, v) + 1] += 1
     for v in range(n_vertices):
         bucket[v + 1] += bucket[v]
     fill = bucket[:-1].copy()
-    side_high = np.zeros(n_sides, np.int32)
-    side_of = np.zeros(n_sides, np.int64)
-    for s in range(n_sides):
-        f, k = s // 3, s % 3
-        u, v = faces[f, k], faces[f, (k + 1) % 3]
-        low = min(u, v)
-        i = fill[low]
-        fill[low] = i + 1
-        # Insertion by high end, behind equal ones: sides of an edge stay in side order.
-        high = max(u, v)
-        while i > bucket[low] and side_high[i - 1] > high:
-            side_high[i] = side_high[i - 1]
-            side_of[i] = side_of[i - 1]
-            i -= 1
-        side_high[i] = high
-        side_of[i] = s
+    high_and_side = np.zeros(3 * n_faces, np.int64)
+    for f in range(n_faces):
+        for k in range(3):
+            u, v = faces[f, k], faces[f, (k + 1) % 3]
+            low = min(u, v)
+            key = (np.int64(max(u, v)) << 32) | (3 * f + k)
+            i = fill[low]
+            fill[low] = i + 1
+            # Insertion behind smaller keys: the sides come in increasing order.
+            while i > bucket[low] and high_and_side[i - 1] > key:
+                high_and_side[i] = high_and_side[i - 1]
+                i -= 1
+            high_and_side[i] = key
     n_edges = 0
     for low in range(n_vertices):
         previous = -1
         for i in range(bucket[low], bucket[low + 1]):
-            if side_high[i] != previous:
-                previous = side_high[i]
+            high = high_and_side[i] >> 32
+            if high != previous:
+                previous = high
                 edges[n_edges, 0] = low
-                edges[n_edges, 1] = previous
+                edges[n_edges, 1] = high
                 n_edges += 1
             e = n_edges - 1
-            s = side_of[i]
+            s = high_and_side[i] & LOW_32_BITS
             face_edge[s // 3, s % 3] = e
             edge_face_count[e] += 1
             edge_side[e] = s

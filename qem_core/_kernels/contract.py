@@ -191,16 +191,19 @@ def _prefetch_next(heap_entries, heap_size, start, count, pool, faces, face_edge
 prefetch_next = numba.njit(cache=True, inline="always")(_prefetch_next)
 
 
-def _update_vertex_edges(vertices, vertex_quadrics, edge_quadrics, faces, face_alive,
-                         face_edge, start, count, pool, near, generation, heap_entries,
-                         heap_position, heap_size, v, only_missing, exact, rank_tolerance,
-                         quadric, position, look):
+def _update_vertex_edges(vertices, vertex_quadrics, vertex_refused, edge_quadrics, faces,
+                         face_alive, face_edge, start, count, pool, near, generation, retry,
+                         heap_entries, heap_position, heap_size, v, only_missing, exact,
+                         rank_tolerance, quadric, position, look):
     """Give every edge of v its current cost in the heap (inserting it if it was out).
 
     With ``only_missing``, edges already in the heap are left alone (their cost is
     current: it changes only when an end changes, and then this runs for that end).
-    Tags the neighbours of v (column NEAR_SCRATCH) with a new generation, which it
-    returns. quadric (10,), position (3,): float64 work space.
+    Without it (v was just contracted into), the neighbours that had a candidate refused
+    are listed in ``retry`` (and their mark cleared): v's change may have lifted the
+    reason. Tags the neighbours of v (column NEAR_SCRATCH) with a new generation.
+    Returns (that generation, how many neighbours were listed). quadric (10,),
+    position (3,): float64 work space.
     """
     s = start[v]
     for i in range(count[v]):
@@ -215,6 +218,7 @@ def _update_vertex_edges(vertices, vertex_quadrics, edge_quadrics, faces, face_a
     generation[0] += 1
     g = generation[0]
     near[v, NEAR_SCRATCH] = g
+    n_retry = 0
     for i in range(count[v]):
         f = pool[s + i]
         if not face_alive[f]:
@@ -227,14 +231,19 @@ def _update_vertex_edges(vertices, vertex_quadrics, edge_quadrics, faces, face_a
                 continue
             near[x, NEAR_SCRATCH] = g
             edge = face_edge[f, corner if step == 1 else (corner + 2) % 3]
-            if only_missing and heap_position[edge] >= 0:
-                continue
+            if only_missing:
+                if heap_position[edge] >= 0:
+                    continue
+            elif vertex_refused[x]:
+                vertex_refused[x] = 0
+                retry[n_retry] = x
+                n_retry += 1
             cost = candidate_cost(vertices, vertex_quadrics, edge_quadrics, v, x, edge, exact,
                                   rank_tolerance, quadric, position, faces, face_alive, start,
                                   count, pool, look)
             update(heap_entries, heap_position, heap_size, cost_key(cost), pair(v, x),
                    edge)
-    return g
+    return g, n_retry
 
 
 update_vertex_edges = borrowing_kernel(_update_vertex_edges)
@@ -358,10 +367,11 @@ def _update_after_contraction(vertices, vertex_quadrics, vertex_refused, edge_qu
     back, since a's change may have lifted the reason. ``retry`` is (n,) int32 scratch.
     """
     has_pairs = pair_ends.shape[0] > 0
-    g = update_vertex_edges(vertices, vertex_quadrics, edge_quadrics, faces, face_alive,
-                            face_edge, start, count, pool, near, generation, heap_entries,
-                            heap_position, heap_size, a, False, exact, rank_tolerance,
-                            quadric, position, look)
+    g, n_retry = update_vertex_edges(vertices, vertex_quadrics, vertex_refused,
+                                     edge_quadrics, faces, face_alive, face_edge, start,
+                                     count, pool, near, generation, retry, heap_entries,
+                                     heap_position, heap_size, a, False, exact,
+                                     rank_tolerance, quadric, position, look)
     if has_pairs:
         update_vertex_pairs(vertices, vertex_quadrics, edge_quadrics, near, generation,
                             heap_entries, heap_position, heap_size, pair_ends, pair_alive,
@@ -375,21 +385,12 @@ def _update_after_contraction(vertices, vertex_quadrics, vertex_refused, edge_qu
         x = faces[f, 0] + faces[f, 1] + faces[f, 2] - a - b
         if near[x, NEAR_SCRATCH] != g:
             remove(heap_entries, heap_position, heap_size, near[x, NEAR_EDGE_A])
-    n_retry = 0
-    s = start[a]
-    for i in range(count[a]):
-        f = pool[s + i]
-        for k in range(3):
-            x = faces[f, k]
-            if x != a and vertex_refused[x]:
-                vertex_refused[x] = 0
-                retry[n_retry] = x
-                n_retry += 1
     for i in range(n_retry):
-        g = update_vertex_edges(vertices, vertex_quadrics, edge_quadrics, faces, face_alive,
-                                face_edge, start, count, pool, near, generation,
-                                heap_entries, heap_position, heap_size, retry[i], True, exact,
-                                rank_tolerance, quadric, position, look)
+        g, _ = update_vertex_edges(vertices, vertex_quadrics, vertex_refused, edge_quadrics,
+                                   faces, face_alive, face_edge, start, count, pool, near,
+                                   generation, retry, heap_entries, heap_position, heap_size,
+                                   retry[i], True, exact, rank_tolerance, quadric, position,
+                                   look)
         if has_pairs:
             update_vertex_pairs(vertices, vertex_quadrics, edge_quadrics, near, generation,
                                 heap_entries, heap_position, heap_size, pair_ends, pair_alive,
@@ -470,7 +471,7 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, s
             return STATUS_NEED_WEDGE_SPACE, steps
         generation[0] += 1
         g = generation[0]
-        gather(faces, face_alive, face_edge, start, count, pool, a, b, near, g)
+        facts = gather(faces, face_alive, face_edge, start, count, pool, a, b, near, g)
         for v in (a, b):
             prefetch_neighbourhood(vertices, vertex_quadrics, edge_quadrics, face_normals,
                                    faces, face_alive, face_edge, start, count, pool,
@@ -485,7 +486,7 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, s
         elif near[b, NEAR_TAG_A] != g:
             continue  # no face left on the edge (cannot happen: such edges leave the heap)
         elif preserve_topology and check_link(
-            faces, face_alive, start, count, pool, a, b, near, g
+            faces, face_alive, start, count, pool, a, b, near, g, facts
         ) != REFUSE_NONE:
             vertex_refused[a] = 1
             vertex_refused[b] = 1

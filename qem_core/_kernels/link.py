@@ -17,9 +17,9 @@ non-manifold), and the ids of edges a-x and b-x (the contraction merges and rena
 by these ids). Values are stamped with a generation, so nothing is cleared between calls.
 All of a vertex's scratch values sit in one 32-byte row: a contraction visits a dozen
 random vertices, and one row is one cache miss where eight separate arrays were eight.
-Kernels take arrays one by one, and as few as possible: every array argument of a call
-that is not inlined costs two atomic reference-count updates, and passing a tuple of
-arrays costs that for every member.
+``gather`` also decides, on its one pass over each end's faces, the parts of the rules
+that need no second look (see the FACT_* bits); ``check_link`` revisits faces only for
+the rare rest.
 """
 
 from typing import NamedTuple
@@ -67,65 +67,80 @@ def restart_generations(hood: Neighbourhood) -> None:
         hood.generation[0] = 0
 
 
-def _count_edges(faces, face_alive, face_edge, start, count, pool, v, near, column, g):
+# Facts ``gather`` finds on its way, as bits of the value it returns.
+FACT_A_BORDER = 1  # a has a border edge (a neighbour sharing one face with it)
+FACT_B_BORDER = 2
+FACT_COMMON_NOT_OPPOSITE = 4  # a common neighbour of a and b spans no face abx
+FACT_B_FACE_ON_OPPOSITES = 8  # a face bxy without a over two opposite vertices x, y
+
+
+def _count_edges(faces, face_alive, face_edge, start, count, pool, v, other, near, column,
+                 g):
     """For each neighbour x of v: near[x, column + 1] = live faces containing edge v-x,
-    near[x, column + 2] = that edge's id; near[x, column] = g marks them valid."""
+    near[x, column + 2] = that edge's id; near[x, column] = g marks them valid.
+
+    Side a (column NEAR_TAG_A, other = b) also tags the opposite vertex of each face abx
+    (NEAR_OPPOSITE). Side b, counted second, meets every common neighbour and so checks
+    the vertex part of the link condition on the way. Returns the FACT_* bits found.
+    """
+    side_b = column == NEAR_TAG_B
+    n_single = 0  # neighbours sharing exactly one face with v so far
+    facts = 0
     s = start[v]
     for i in range(count[v]):
         f = pool[s + i]
         if not face_alive[f]:
             continue
+        has_other = False
+        n_opposite = 0
         for k in range(3):
             x = faces[f, k]
             if x == v:
                 continue
             if near[x, column] != g:
                 near[x, column] = g
-                near[x, column + 1] = 0
-            near[x, column + 1] += 1
+                near[x, column + 1] = 1
+                n_single += 1
+            else:
+                near[x, column + 1] += 1
+                if near[x, column + 1] == 2:
+                    n_single -= 1
             # Side k runs from corner k to k + 1: it is x-v if v follows x, else v-x is
             # the side that ends at x.
             if faces[f, (k + 1) % 3] == v:
                 near[x, column + 2] = face_edge[f, k]
             else:
                 near[x, column + 2] = face_edge[f, (k + 2) % 3]
+            if x == other:
+                has_other = True
+            elif side_b and near[x, NEAR_TAG_A] == g:
+                if near[x, NEAR_OPPOSITE] == g:
+                    n_opposite += 1
+                else:
+                    facts |= FACT_COMMON_NOT_OPPOSITE
+        if side_b:
+            if not has_other and n_opposite == 2:
+                facts |= FACT_B_FACE_ON_OPPOSITES
+        elif has_other:
+            near[faces[f, 0] + faces[f, 1] + faces[f, 2] - v - other, NEAR_OPPOSITE] = g
+    if n_single > 0:
+        facts |= FACT_B_BORDER if side_b else FACT_A_BORDER
+    return facts
 
 
 count_edges = numba.njit(cache=True, inline="always")(_count_edges)
 
 
 def _gather(faces, face_alive, face_edge, start, count, pool, a, b, near, g):
-    """Fill the neighbourhood of a and b for generation g."""
-    count_edges(faces, face_alive, face_edge, start, count, pool, a, near, NEAR_TAG_A, g)
-    count_edges(faces, face_alive, face_edge, start, count, pool, b, near, NEAR_TAG_B, g)
-    s = start[a]
-    for i in range(count[a]):
-        f = pool[s + i]
-        if not face_alive[f]:
-            continue
-        f0, f1, f2 = faces[f, 0], faces[f, 1], faces[f, 2]
-        if f0 == b or f1 == b or f2 == b:
-            near[f0 + f1 + f2 - a - b, NEAR_OPPOSITE] = g
+    """Fill the neighbourhood of a and b for generation g; returns the FACT_* bits that
+    ``check_link`` needs (one pass over the faces of each end, instead of one per rule)."""
+    facts = count_edges(faces, face_alive, face_edge, start, count, pool, a, b, near,
+                        NEAR_TAG_A, g)
+    return facts | count_edges(faces, face_alive, face_edge, start, count, pool, b, a, near,
+                               NEAR_TAG_B, g)
 
 
 gather = borrowing_kernel(_gather)
-
-
-def _is_border(faces, face_alive, start, count, pool, v, near, column, g):
-    """Has v a border edge (one face)? Needs ``count_edges`` of v in ``column``."""
-    s = start[v]
-    for i in range(count[v]):
-        f = pool[s + i]
-        if not face_alive[f]:
-            continue
-        for k in range(3):
-            x = faces[f, k]
-            if x != v and near[x, column] == g and near[x, column + 1] == 1:
-                return True
-    return False
-
-
-is_border = numba.njit(cache=True, inline="always")(_is_border)
 
 
 def _has_face_on_opposites(faces, face_alive, start, count, pool, v, other, near, g):
@@ -151,33 +166,24 @@ def _has_face_on_opposites(faces, face_alive, start, count, pool, v, other, near
 has_face_on_opposites = numba.njit(cache=True, inline="always")(_has_face_on_opposites)
 
 
-def _check_link(faces, face_alive, start, count, pool, a, b, near, g):
-    """One of the REFUSE_* codes for contracting a and b (gathered in generation g)."""
+def _check_link(faces, face_alive, start, count, pool, a, b, near, g, facts):
+    """One of the REFUSE_* codes for contracting a and b (gathered in generation g, with
+    the FACT_* bits ``gather`` returned)."""
     if near[b, NEAR_TAG_A] != g:
         return REFUSE_NOT_EDGE
     # Vertices of Lk a ∩ Lk b must be opposite vertices of faces abx.
-    s = start[b]
-    for i in range(count[b]):
-        f = pool[s + i]
-        if not face_alive[f]:
-            continue
-        for k in range(3):
-            x = faces[f, k]
-            if (x != a and x != b and near[x, NEAR_TAG_A] == g
-                    and near[x, NEAR_OPPOSITE] != g):
-                return REFUSE_LINK
+    if facts & FACT_COMMON_NOT_OPPOSITE:
+        return REFUSE_LINK
     # Edges of Lk a ∩ Lk b: faces axy and bxy over two opposite vertices x, y.
-    if has_face_on_opposites(faces, face_alive, start, count, pool, a, b, near, g) and (
-        has_face_on_opposites(faces, face_alive, start, count, pool, b, a, near, g)
+    if facts & FACT_B_FACE_ON_OPPOSITES and has_face_on_opposites(
+        faces, face_alive, start, count, pool, a, b, near, g
     ):
         return REFUSE_LINK
-    ab_border = near[b, NEAR_COUNT_A] == 1
-    a_border = is_border(faces, face_alive, start, count, pool, a, near, NEAR_TAG_A, g)
-    b_border = is_border(faces, face_alive, start, count, pool, b, near, NEAR_TAG_B, g)
-    if a_border and b_border and not ab_border:
-        return REFUSE_BORDER
-    if a_border and b_border:
-        # ωx in both links: x joined to a and to b by border edges.
+    if facts & FACT_A_BORDER and facts & FACT_B_BORDER:
+        # Both on the border: only along a border edge ab (ω is in both links)...
+        if near[b, NEAR_COUNT_A] != 1:
+            return REFUSE_BORDER
+        # ...and no ωx in both links: x joined to a and to b by border edges.
         s = start[b]
         for i in range(count[b]):
             f = pool[s + i]

@@ -57,7 +57,8 @@ from .local_commands import add_build, add_info, add_lod, add_simplify
 
 __all__ = ["SUBCOMMANDS", "build_parser", "main"]
 
-_DEMO_MESHES = ("server/demo/spot.obj",)
+# The GLB carries spot's texture (an OBJ upload cannot), so the viewer shows it textured.
+_DEMO_MESHES = ("server/demo/spot.glb", "server/demo/spot.obj")
 
 log = logging.getLogger("qem")
 

@@ -258,6 +258,12 @@ class QemClient:
         assert lod is not None
         return lod.content
 
+    def texture(self, mesh_id: str) -> tuple[str, bytes]:
+        """The mesh's texture image as (media type, bytes); QemHTTPError (404,
+        ``texture-not-found``) when the mesh was uploaded without one."""
+        response = self._request("GET", f"/v1/meshes/{mesh_id}/texture")
+        return response.headers["content-type"], response.content
+
     def splits(self, mesh_id: str, n1: int | None = None, n2: int | None = None) -> Iterator[bytes]:
         """The vertex-split stream refining level `n1` to `n2` (None: base and full),
         as it arrives: one frame payload (bytes) at a time, as

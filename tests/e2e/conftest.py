@@ -40,8 +40,11 @@ class ServerProcess:
     log : everything the server printed so far (stdout and stderr).
     """
 
-    def __init__(self, data_dir: Path, env: dict[str, str] | None = None) -> None:
+    def __init__(
+        self, data_dir: Path, env: dict[str, str] | None = None, args: tuple[str, ...] = ()
+    ) -> None:
         self.data_dir = data_dir
+        self.args = args
         self.env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
         self.env.pop("QEM_TOKEN", None)
         self.process: subprocess.Popen[str] | None = None
@@ -69,6 +72,7 @@ class ServerProcess:
             "1",
             "--log-level",
             "info",
+            *self.args,
         ]
         self._started.clear()
         self.process = subprocess.Popen(
@@ -119,12 +123,14 @@ class ServerProcess:
 
 @pytest.fixture
 def start_server(tmp_path) -> Iterator:
-    """start_server(env=None, data_dir=None) -> a started ServerProcess; all stopped at
-    the end of the test."""
+    """start_server(env=None, data_dir=None, args=()) -> a started ServerProcess (`args`
+    added to ``qem serve``'s command line); all stopped at the end of the test."""
     started: list[ServerProcess] = []
 
-    def start(env: dict[str, str] | None = None, data_dir: Path | None = None):
-        server = ServerProcess(data_dir or tmp_path / "data", env).start()
+    def start(
+        env: dict[str, str] | None = None, data_dir: Path | None = None, args: tuple[str, ...] = ()
+    ):
+        server = ServerProcess(data_dir or tmp_path / "data", env, args).start()
         started.append(server)
         return server
 

@@ -178,3 +178,19 @@ def test_writes_need_the_right_token(start_server, workdir):
     assert qem("ls", cwd=workdir, server=guarded.url).returncode == 0
     assert_clean_failure(qem("rm", mesh_id, cwd=workdir, server=guarded.url), 1, "(401)")
     assert qem("rm", mesh_id, cwd=workdir, server=guarded.url, token=TOKEN).returncode == 0
+
+
+def test_serve_demo_loads_textured_spot(start_server, tmp_path):
+    """``qem serve --demo`` on an empty data directory builds Spot with its texture: the
+    viewer's levels carry per-corner UVs and the texture endpoint serves the image."""
+    server = start_server(data_dir=tmp_path / "demo-data", args=("--demo",))
+    with server.client() as client:
+        (record,) = client.list()
+        assert record["name"] == "spot.glb"
+        info = client.wait_ready(record["id"], timeout=600)
+        assert info["vertices"] == 2930
+        level = qem_core.load_mesh(client.lod(record["id"], 300, "obj"), format="obj")
+        assert level.n_vertices == 300 and level.corner_uvs is not None
+        media_type, image = client.texture(record["id"])
+    assert media_type == "image/png"
+    assert image == qem_core.load_mesh(REPO / "server" / "demo" / "spot.glb").texture

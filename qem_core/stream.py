@@ -22,22 +22,26 @@ docs/formats.md gives every field.
 from __future__ import annotations
 
 import struct
-import zlib
 from collections.abc import Iterable, Iterator
 from typing import NamedTuple
 
 import msgpack
 import numpy as np
 
+from ._kernels import range_coder
 from ._kernels.stream_coding import (
+    ALL_FIELDS,
     BAD_BACK,
     BAD_CODE,
-    BAD_MASK,
+    BAD_COUNT,
     BAD_THIRD,
     BAD_VERTEX,
+    CONTEXT_SLOTS,
     LONG_DATA,
     NO_CORNER,
     SHORT_DATA,
+    SPLIT_CONTEXT,
+    code_splits,
     decode_connectivity,
     encode_connectivity,
     link_corners,
@@ -57,18 +61,20 @@ __all__ = [
 ]
 
 MEDIA_TYPE = "application/x-qem-splits"
-STREAM_VERSION = 2
+STREAM_VERSION = 3
 # Frames grow from FIRST_FRAME_SPLITS to SPLITS_PER_FRAME splits (doubling), so that a
-# viewer refines early in the stream and big ranges still deflate well.
+# viewer refines early in the stream (each frame starts its contexts afresh, so the
+# first ones cost a little more).
 FIRST_FRAME_SPLITS = 512
 SPLITS_PER_FRAME = 8192
 _FRAME_LIMIT = 64 << 20
-# Deflate level 6, not 9: on dragon's whole stream 9 is 0.4 % smaller but 3.9x slower
-# (3.8 s against 1.0 s), and encoding is what a viewer waits for.
-_DEFLATE_LEVEL = 6
-# A full frame of 8192 splits inflates to well under 1 MiB; 256 MiB leaves room for
-# explicit faces and long relabel lists while bounding what a hostile frame costs.
-_INFLATED_LIMIT = 256 << 20
+# What a decoder allocates for one frame is bounded: at most this many splits and new
+# faces (a frame of 8192 splits has about 16,000), and at most _ITEMS_PER_BYTE of either
+# per coded byte (a split codes at least 6 decisions, a face at least 3, and a decision
+# costs at least 1/177 bit: 512 per byte is well above what any encoder can reach).
+FRAME_SPLIT_LIMIT = 1 << 16
+FRAME_FACE_LIMIT = 1 << 22
+_ITEMS_PER_BYTE = 512
 
 
 def grid_for(pm: ProgressiveMesh, bits: int = 16) -> Grid:
@@ -78,44 +84,52 @@ def grid_for(pm: ProgressiveMesh, bits: int = 16) -> Grid:
     return Grid.over_box(*pm.position_bounds, bits)
 
 
-def _planes(values: np.ndarray, dtype: str) -> bytes:
-    """Little-endian integers as byte planes."""
-    raw = np.ascontiguousarray(values, dtype=dtype)
-    return raw.view(np.uint8).reshape(-1, raw.dtype.itemsize).T.tobytes()
-
-
-def _from_planes(data: bytes, dtype: str, count: int) -> np.ndarray:
-    itemsize = np.dtype(dtype).itemsize
-    if len(data) != count * itemsize:
-        raise CorruptFileError(
-            f"split frame: a field holds {len(data)} bytes, expected {count * itemsize}"
-        )
-    planes = np.frombuffer(data, np.uint8).reshape(itemsize, count)
-    return np.ascontiguousarray(planes.T).view(dtype).reshape(count)
-
-
-def _zigzag(values: np.ndarray) -> np.ndarray:
-    v = values.astype(np.int64)
-    return ((v << 1) ^ (v >> 63)).astype(np.uint64)
-
-
-def _unzigzag(values: np.ndarray) -> np.ndarray:
-    v = values.astype(np.uint64)
-    return ((v >> np.uint64(1)).astype(np.int64)) ^ -((v & np.uint64(1)).astype(np.int64))
+def range_code_fields(
+    n_from: int,
+    split_back: np.ndarray,
+    new_face_counts: np.ndarray,
+    codes: np.ndarray,
+    thirds: np.ndarray,
+    backs: np.ndarray,
+    masks: np.ndarray,
+    mid: np.ndarray,
+    span: np.ndarray,
+    split_context: np.ndarray,
+    fields: int = ALL_FIELDS,
+) -> bytes:
+    """The frame's fields (``encode_connectivity``'s output) range-coded with fresh
+    contexts; ``fields`` picks some of them (``stream_coding.FIELD_*``) to measure."""
+    capacity = 64 + 16 * split_back.shape[0] + 8 * codes.shape[0]
+    while True:
+        out = np.empty(capacity, np.uint8)
+        enc = range_coder.new_encoder()
+        code_splits(
+            enc, out, range_coder.new_probs(CONTEXT_SLOTS), fields, n_from, split_back,
+            new_face_counts, codes, thirds, backs, masks, mid, span, split_context,
+        )  # fmt: skip
+        written = range_coder.finish(enc, out)
+        if written <= capacity:
+            return out[:written].tobytes()
+        capacity = 2 * written
 
 
 def _encode_frame(splits: VertexSplits, state: _State, quantised: np.ndarray, grid: Grid) -> bytes:
     k = splits.split_vertex.shape[0]
     mid = np.zeros((k, 3), np.int64)
     span = np.zeros((k, 3), np.int64)
+    split_context = np.zeros((k, SPLIT_CONTEXT), np.int64)
     codes, thirds, backs, masks, status = encode_connectivity(
         state.faces, splits.faces_from, state.head, state.nxt, splits.n_from,
         splits.split_vertex, splits.new_faces, splits.new_face_counts,
         splits.relabel_offsets, splits.relabel_faces, quantised,
-        grid.quantise(splits.split_positions), mid, span,
+        grid.quantise(splits.split_positions), mid, span, split_context,
     )  # fmt: skip
     if status:
         raise ValueError("inconsistent splits: a relabelled face has no corner s")
+    coded = range_code_fields(
+        splits.n_from, splits.n_from + np.arange(k) - splits.split_vertex,
+        splits.new_face_counts, codes, thirds, backs, masks, mid, span, split_context,
+    )  # fmt: skip
     body = {
         "format": "qem-splits",
         "version": STREAM_VERSION,
@@ -125,17 +139,9 @@ def _encode_frame(splits: VertexSplits, state: _State, quantised: np.ndarray, gr
         "bits": grid.bits,
         "grid": [*map(float, grid.origin), *map(float, grid.step)],
         "n_new_faces": int(splits.new_faces.shape[0]),
-        "n_backs": int(backs.shape[0]),
-        "split_back": _planes(splits.n_from + np.arange(k) - splits.split_vertex, "<u4"),
-        "new_face_counts": _planes(splits.new_face_counts, "<u2"),
-        "face_codes": codes.tobytes(),
-        "third_corners": thirds.tobytes(),
-        "corners_back": _planes(backs, "<u4"),
-        "relabel_masks": masks.tobytes(),
-        "position_mid": _planes(_zigzag(mid.T.reshape(-1)), "<u4"),
-        "position_span": _planes(_zigzag(span.T.reshape(-1)), "<u4"),
+        "splits": coded,
     }
-    payload = zlib.compress(msgpack.packb(body), _DEFLATE_LEVEL)
+    payload = msgpack.packb(body)
     return struct.pack("<I", len(payload)) + payload
 
 
@@ -164,6 +170,10 @@ def encode_split_frames(
 ) -> Iterator[bytes]:
     """Frames of the splits refining lod(n_from) to lod(n_to), generated lazily."""
     grid = grid_for(pm, bits)
+    if not 1 <= splits_per_frame <= FRAME_SPLIT_LIMIT:
+        raise InvalidOptionsError(
+            f"splits_per_frame={splits_per_frame} must be in [1, {FRAME_SPLIT_LIMIT}]"
+        )
     n_from, n_to = pm.clamp(n_from), pm.clamp(n_to)
     if n_from > n_to:
         raise InvalidOptionsError(f"from={n_from} must not exceed to={n_to}")
@@ -197,18 +207,6 @@ def iter_frames(chunks: Iterable[bytes]) -> Iterator[bytes]:
         raise CorruptFileError(f"split stream ends inside a frame ({len(buffer)} bytes left)")
 
 
-def _inflate(payload: bytes) -> bytes:
-    """The frame's deflated body, refused beyond _INFLATED_LIMIT bytes: a small frame must
-    not be able to expand into gigabytes (a deflate bomb)."""
-    inflater = zlib.decompressobj()
-    body = inflater.decompress(payload, _INFLATED_LIMIT)
-    if inflater.unconsumed_tail:
-        raise CorruptFileError(f"split frame inflates beyond {_INFLATED_LIMIT >> 20} MiB")
-    if not inflater.eof:
-        raise CorruptFileError("split frame: the deflate data is truncated")
-    return body
-
-
 class SplitStreamDecoder:
     """Refines a mesh held as grid integers by the frames of a split stream.
 
@@ -233,8 +231,8 @@ class SplitStreamDecoder:
 
     def feed(self, payload: bytes) -> None:
         try:
-            body = msgpack.unpackb(_inflate(payload))
-            if body.get("format") != "qem-splits":
+            body = msgpack.unpackb(payload)
+            if not isinstance(body, dict) or body.get("format") != "qem-splits":
                 raise CorruptFileError("not a qem-splits frame")
             version = body["version"]
             if not isinstance(version, int) or version > STREAM_VERSION:
@@ -244,8 +242,8 @@ class SplitStreamDecoder:
                     f"split frame version {version} is no longer read (this reads {STREAM_VERSION})"
                 )
             n_from, n_to, faces_from = body["n_from"], body["n_to"], body["faces_from"]
-            n_new, n_backs = body["n_new_faces"], body["n_backs"]
-            for value in (n_from, n_to, faces_from, n_new, n_backs):
+            n_new = body["n_new_faces"]
+            for value in (n_from, n_to, faces_from, n_new):
                 if not isinstance(value, int) or value < 0:
                     raise CorruptFileError(f"split frame: a count is {value!r}")
             grid_values = np.asarray(body["grid"], np.float64)
@@ -260,35 +258,41 @@ class SplitStreamDecoder:
                     f"frame refines {n_from} vertices / {faces_from} faces, the mesh has "
                     f"{self.n_vertices} / {self.faces.shape[0]}"
                 )
-            split_back = _from_planes(body["split_back"], "<u4", k).astype(np.int64)
-            counts = _from_planes(body["new_face_counts"], "<u2", k).astype(np.int64)
-            if int(counts.sum()) != n_new:
-                raise CorruptFileError("split frame: face counts do not add up to n_new_faces")
-            codes = np.frombuffer(_bin(body["face_codes"], n_new, "face_codes"), np.uint8)
-            thirds = np.frombuffer(_bin(body["third_corners"], None, "third_corners"), np.uint8)
-            backs = _from_planes(body["corners_back"], "<u4", n_backs).astype(np.int64)
-            masks = np.frombuffer(_bin(body["relabel_masks"], None, "relabel_masks"), np.uint8)
-            mid = _unzigzag(_from_planes(body["position_mid"], "<u4", 3 * k))
-            span = _unzigzag(_from_planes(body["position_span"], "<u4", 3 * k))
+            coded = np.frombuffer(_bin(body["splits"], None, "splits"), np.uint8)
         except CorruptFileError:
             raise
-        except Exception as exc:  # zlib, msgpack, KeyError, TypeError...
+        except Exception as exc:  # msgpack, KeyError, TypeError...
             raise CorruptFileError(f"unreadable split frame: {exc}") from None
+        _check_frame_size(k, n_new, coded.shape[0])
         state = _state(self.faces, n_to, faces_from + n_new)
         if state is None:
             raise CorruptFileError("the mesh being refined has a face naming no vertex")
         quantised = np.zeros((n_to, 3), np.int64)
         quantised[:n_from] = self.quantised
         status, _, _, _ = decode_connectivity(
-            state.faces, faces_from, state.head, state.nxt, n_from, split_back, counts,
-            codes, thirds, backs, masks, quantised, mid.reshape(3, k).T.copy(),
-            span.reshape(3, k).T.copy(),
-        )  # fmt: skip
+            state.faces, faces_from, state.head, state.nxt, n_from, k, n_new, coded, quantised
+        )
         if status:
             raise CorruptFileError(f"split frame: {_STATUS[status]}")
         self.faces = state.faces
         self.quantised = quantised
         self.grid = grid
+
+
+def _check_frame_size(n_splits: int, n_new_faces: int, n_bytes: int) -> None:
+    """Refuse counts no frame of n_bytes can hold, before allocating for them: every
+    split codes at least six decisions and every face three, each at least 1/177 bit
+    (range_coder), so a frame holds far fewer than _ITEMS_PER_BYTE of either per byte."""
+    if n_splits > FRAME_SPLIT_LIMIT or n_new_faces > FRAME_FACE_LIMIT:
+        raise CorruptFileError(
+            f"split frame: {n_splits} splits / {n_new_faces} faces, over the limit "
+            f"({FRAME_SPLIT_LIMIT} / {FRAME_FACE_LIMIT})"
+        )
+    if max(n_splits, n_new_faces) > _ITEMS_PER_BYTE * (n_bytes + 1):
+        raise CorruptFileError(
+            f"split frame: {n_bytes} coded bytes cannot hold {n_splits} splits and "
+            f"{n_new_faces} faces"
+        )
 
 
 def _bin(value, length: int | None, name: str) -> bytes:
@@ -299,11 +303,11 @@ def _bin(value, length: int | None, name: str) -> bytes:
 
 _STATUS = {
     BAD_VERTEX: "a split names a vertex that does not exist yet",
+    BAD_COUNT: "the splits' face counts do not add up to n_new_faces",
     BAD_CODE: "a face code is not 0..6",
     BAD_THIRD: "a third corner is not a neighbour of the split vertex",
     BAD_BACK: "a new face names a vertex that does not exist yet",
-    SHORT_DATA: "a field ends before the splits do",
-    LONG_DATA: "a field holds more than the splits use",
-    BAD_MASK: "a relabel mask sets a bit past the split vertex's corners",
+    SHORT_DATA: "the coded splits end early (truncated or corrupt data)",
+    LONG_DATA: "the coded splits hold bytes past the last split",
     NO_CORNER: "a relabelled face has no corner s",
 }

@@ -22,6 +22,7 @@ docs/formats.md gives every field.
 from __future__ import annotations
 
 import struct
+import zlib
 from collections.abc import Iterable, Iterator
 from typing import NamedTuple
 
@@ -56,6 +57,7 @@ __all__ = [
     "Grid",
     "SplitStreamDecoder",
     "encode_split_frames",
+    "split_frame_symbols",
     "grid_for",
     "iter_frames",
 ]
@@ -84,36 +86,39 @@ def grid_for(pm: ProgressiveMesh, bits: int = 16) -> Grid:
     return Grid.over_box(*pm.position_bounds, bits)
 
 
-def range_code_fields(
-    n_from: int,
-    split_back: np.ndarray,
-    new_face_counts: np.ndarray,
-    codes: np.ndarray,
-    thirds: np.ndarray,
-    backs: np.ndarray,
-    masks: np.ndarray,
-    mid: np.ndarray,
-    span: np.ndarray,
-    split_context: np.ndarray,
-    fields: int = ALL_FIELDS,
-) -> bytes:
-    """The frame's fields (``encode_connectivity``'s output) range-coded with fresh
-    contexts; ``fields`` picks some of them (``stream_coding.FIELD_*``) to measure."""
-    capacity = 64 + 16 * split_back.shape[0] + 8 * codes.shape[0]
+class FrameSymbols(NamedTuple):
+    """What one frame codes, before the range coder: ``encode_connectivity``'s arrays
+    (docs/formats.md gives each field) and the per-split contexts from the state."""
+
+    n_from: int
+    split_back: np.ndarray  # (k,) t - s
+    new_face_counts: np.ndarray  # (k,)
+    face_codes: np.ndarray  # (new faces,) 0..6
+    third_corners: np.ndarray  # (faces of code 0-5,) index into nb, or 255
+    corners_back: np.ndarray  # t - corner of escaped and explicit corners
+    relabel_masks: np.ndarray  # ceil(nc / 8) bytes per split
+    position_mid: np.ndarray  # (k, 3)
+    position_span: np.ndarray  # (k, 3)
+    split_context: np.ndarray  # (k, SPLIT_CONTEXT)
+
+
+def range_code_fields(symbols: FrameSymbols, fields: int = ALL_FIELDS) -> bytes:
+    """The frame's fields range-coded with fresh contexts; ``fields`` picks some of them
+    (``stream_coding.FIELD_*``) to measure them one by one."""
+    capacity = 64 + 16 * symbols.split_back.shape[0] + 8 * symbols.face_codes.shape[0]
     while True:
         out = np.empty(capacity, np.uint8)
         enc = range_coder.new_encoder()
-        code_splits(
-            enc, out, range_coder.new_probs(CONTEXT_SLOTS), fields, n_from, split_back,
-            new_face_counts, codes, thirds, backs, masks, mid, span, split_context,
-        )  # fmt: skip
+        code_splits(enc, out, range_coder.new_probs(CONTEXT_SLOTS), fields, *symbols)
         written = range_coder.finish(enc, out)
         if written <= capacity:
             return out[:written].tobytes()
         capacity = 2 * written
 
 
-def _encode_frame(splits: VertexSplits, state: _State, quantised: np.ndarray, grid: Grid) -> bytes:
+def _frame_symbols(
+    splits: VertexSplits, state: _State, quantised: np.ndarray, grid: Grid
+) -> FrameSymbols:
     k = splits.split_vertex.shape[0]
     mid = np.zeros((k, 3), np.int64)
     span = np.zeros((k, 3), np.int64)
@@ -126,10 +131,14 @@ def _encode_frame(splits: VertexSplits, state: _State, quantised: np.ndarray, gr
     )  # fmt: skip
     if status:
         raise ValueError("inconsistent splits: a relabelled face has no corner s")
-    coded = range_code_fields(
-        splits.n_from, splits.n_from + np.arange(k) - splits.split_vertex,
-        splits.new_face_counts, codes, thirds, backs, masks, mid, span, split_context,
+    split_back = splits.n_from + np.arange(k) - splits.split_vertex
+    return FrameSymbols(
+        splits.n_from, split_back, splits.new_face_counts, codes, thirds, backs, masks,
+        mid, span, split_context,
     )  # fmt: skip
+
+
+def _encode_frame(splits: VertexSplits, state: _State, quantised: np.ndarray, grid: Grid) -> bytes:
     body = {
         "format": "qem-splits",
         "version": STREAM_VERSION,
@@ -139,9 +148,10 @@ def _encode_frame(splits: VertexSplits, state: _State, quantised: np.ndarray, gr
         "bits": grid.bits,
         "grid": [*map(float, grid.origin), *map(float, grid.step)],
         "n_new_faces": int(splits.new_faces.shape[0]),
-        "splits": coded,
+        "splits": range_code_fields(_frame_symbols(splits, state, quantised, grid)),
     }
     payload = msgpack.packb(body)
+    payload += struct.pack("<I", zlib.crc32(payload))
     return struct.pack("<I", len(payload)) + payload
 
 
@@ -167,6 +177,7 @@ def encode_split_frames(
     n_to: int,
     bits: int = 16,
     splits_per_frame: int = SPLITS_PER_FRAME,
+    _frame=_encode_frame,
 ) -> Iterator[bytes]:
     """Frames of the splits refining lod(n_from) to lod(n_to), generated lazily."""
     grid = grid_for(pm, bits)
@@ -186,8 +197,16 @@ def encode_split_frames(
     while start < n_to:
         stop = min(start + frame_splits, n_to)
         frame_splits = min(2 * frame_splits, splits_per_frame)
-        yield _encode_frame(pm.splits(start, stop), state, quantised, grid)
+        yield _frame(pm.splits(start, stop), state, quantised, grid)
         start = stop
+
+
+def split_frame_symbols(
+    pm: ProgressiveMesh, n_from: int, n_to: int, bits: int = 16, **options
+) -> Iterator[FrameSymbols]:
+    """What each frame of ``encode_split_frames`` codes, before the range coder (to
+    measure the fields, and to look at them in tests)."""
+    return encode_split_frames(pm, n_from, n_to, bits, **options, _frame=_frame_symbols)
 
 
 def iter_frames(chunks: Iterable[bytes]) -> Iterator[bytes]:
@@ -230,8 +249,10 @@ class SplitStreamDecoder:
         return self.grid.dequantise(self.quantised)
 
     def feed(self, payload: bytes) -> None:
+        if len(payload) < 4 or zlib.crc32(payload[:-4]) != struct.unpack("<I", payload[-4:])[0]:
+            raise CorruptFileError("split frame: the CRC-32 does not match (damaged frame)")
         try:
-            body = msgpack.unpackb(payload)
+            body = msgpack.unpackb(payload[:-4])
             if not isinstance(body, dict) or body.get("format") != "qem-splits":
                 raise CorruptFileError("not a qem-splits frame")
             version = body["version"]

@@ -34,7 +34,7 @@ import pytest
 import qem_core
 from qem_core import codecs
 from qem_core.progressive import ProgressiveMesh
-from qem_core.stream import encode_split_frames, grid_for
+from qem_core.stream import encode_split_frames, grid_for, split_frame_symbols
 from tests.tiny_meshes import icosphere
 
 from .conftest import REPO, shared_mesh
@@ -125,7 +125,7 @@ import { readFileSync } from "node:fs";
 import { createHash } from "node:crypto";
 import { pathToFileURL } from "node:url";
 const [refinePath, dir] = process.argv.slice(2);
-const { FrameCutter, ProgressiveLevels, decodeBaseMesh, decodeFrame, inflate } =
+const { FrameCutter, ProgressiveLevels, decodeBaseMesh, decodeFrame } =
   await import(pathToFileURL(refinePath).href);
 const plan = JSON.parse(readFileSync(`${dir}/plan.json`, "utf8"));
 const base = decodeBaseMesh(readFileSync(`${dir}/base.msgpack`));
@@ -135,13 +135,7 @@ const cutter = new FrameCutter();
 try {
   for (let at = 0, size = 1; at < stream.length; at += size, size = 2 * size + 1) {
     for (const payload of cutter.push(stream.subarray(at, at + size))) {
-      let inflated;
-      try {
-        inflated = await inflate(payload);
-      } catch (error) {
-        throw new Error(`does not inflate: ${error.message}`);
-      }
-      levels.addFrame(decodeFrame(inflated));
+      levels.addFrame(decodeFrame(payload));
     }
   }
   cutter.finish();
@@ -226,8 +220,8 @@ def hand_drawn_pm() -> ProgressiveMesh:
 def test_refine_js_decodes_every_face_code_exactly(tmp_path):
     pm = hand_drawn_pm()
     codes = set()
-    for frame in encode_split_frames(pm, pm.n_base, pm.n_full):
-        codes |= set(msgpack.unpackb(zlib.decompress(frame[4:]))["face_codes"])
+    for symbols in split_frame_symbols(pm, pm.n_base, pm.n_full):
+        codes |= set(symbols.face_codes.tolist())
     assert codes == {1, 3, 5, 6}  # the sketch does what it says
     visit = [6, 3, 5, 4, 6]
     levels = run_refine_js(tmp_path, pm, visit)
@@ -250,18 +244,47 @@ def frame_of(payload: bytes) -> bytes:
     return struct.pack("<I", len(payload)) + payload
 
 
+def sealed(body: bytes) -> bytes:
+    """A frame of these msgpack bytes with their right CRC-32 (qem_core.stream)."""
+    return frame_of(body + struct.pack("<I", zlib.crc32(body)))
+
+
+def _truncated_splits(frame: bytes) -> bytes:
+    """The frame with the last byte of its range-coded splits cut off."""
+    body = msgpack.unpackb(frame[4:-4])
+    return sealed(msgpack.packb({**body, "splits": body["splits"][:-1]}))
+
+
 @pytest.mark.parametrize(
     ("damage", "message"),
     [
         (lambda frames: b"".join(frames)[:-3], "WireFormatError: split stream ends inside a frame"),
         (lambda frames: b"".join(frames[1:]), "WireFormatError: frame refines 4 vertices"),
-        (lambda frames: frames[0] + b"\x05\x00\x00\x00junk!", "Error: does not inflate"),
         (
-            lambda frames: frames[0] + frame_of(zlib.compress(b"\x92\x01\x02")),
+            lambda frames: frames[0] + b"\x09\x00\x00\x00junk!junk",
+            "WireFormatError: split frame: the CRC-32 does not match",
+        ),
+        (
+            lambda frames: frames[0] + sealed(b"junk!"),
+            "WireFormatError: unreadable split frame",
+        ),
+        (
+            lambda frames: frames[0] + sealed(b"\x92\x01\x02"),
             "WireFormatError: not a qem-splits frame",
         ),
+        (
+            lambda frames: frames[0] + _truncated_splits(frames[1]),
+            "WireFormatError: split frame: the coded splits end early",
+        ),
     ],
-    ids=["cut-inside-a-frame", "frame-skipped", "not-zlib", "not-a-splits-map"],
+    ids=[
+        "cut-inside-a-frame",
+        "frame-skipped",
+        "damaged",
+        "not-msgpack",
+        "not-a-splits-map",
+        "truncated",
+    ],
 )
 def test_refine_js_refuses_damaged_streams(tmp_path, damage, message):
     pm = hand_drawn_pm()

@@ -4,11 +4,11 @@
 // Wire formats (qem_core/stream.py, qem_core/codecs/msgpack_mesh.py):
 //   base mesh   one msgpack map "qem-mesh-msgpack" v1, positions "u16" on the grid whose
 //               box is `bbox` (the very integers the split stream's deltas refer to);
-//   split stream  frames of uint32 LE length L + L bytes of zlib (RFC 1950) data holding
-//               a msgpack map "qem-splits" v2; integer fields are little-endian byte
-//               planes (all low bytes, then the next...), positions zigzag residuals,
+//   split stream  frames of uint32 LE length L + L bytes holding a msgpack map
+//               "qem-splits" v3 whose `splits` bytes are range-coded (range_coder.js):
 //               connectivity relative to the split vertex's neighbourhood, which the
-//               decoder below keeps at the received level (docs/formats.md section 2).
+//               decoder below keeps at the received level, positions as residuals
+//               (docs/formats.md section 2).
 //
 // Split k (level L = nBase + k -> L + 1), as qem_core/_kernels/refine.py applies it:
 //
@@ -22,15 +22,42 @@
 // move costs O(splits crossed + relabels), never a refetch.
 
 import { decode } from "@msgpack/msgpack";
+import { INTEGER_SLOTS, RangeDecoder, UNIFORM_SLOTS, newProbs } from "./range_coder.js";
 
-export const STREAM_VERSION = 2;
+export const STREAM_VERSION = 3;
 export const MESH_VERSION = 1;
 const EXPLICIT_FACE = 6; // face codes 0-2: (s, t, x) rotated; 3-5: (t, s, x); 6: explicit
 const ESCAPE = 255; // a third corner given as a back-distance, not as a neighbour index
 const PREDICT_LIMIT = 64; // as qem_core/_kernels/stream_coding.py
 const SPAN_RING_LIMIT = 64; // as stream_coding.py: products stay below 2^53
 const FRAME_LIMIT = 64 << 20; // as qem_core.stream: a larger length means a broken stream
-const INFLATED_LIMIT = 256 << 20; // as qem_core.stream: a frame may not inflate further
+const FRAME_SPLIT_LIMIT = 1 << 16; // as qem_core.stream: what one frame may allocate
+const FRAME_FACE_LIMIT = 1 << 22;
+const ITEMS_PER_BYTE = 512;
+// The contexts of the coded fields, slots of one probability array
+// (qem_core/_kernels/stream_coding.py, same layout).
+const ROWS = 21;
+const S_SLOTS = 0;
+const COUNT_SLOTS = S_SLOTS + UNIFORM_SLOTS;
+const CODE_SLOTS = COUNT_SLOTS + INTEGER_SLOTS;
+const ESCAPE_SLOT = CODE_SLOTS + 8 * 8;
+const THIRD_SLOTS = ESCAPE_SLOT + 1;
+const BACK_SLOTS = THIRD_SLOTS + 17 * 8;
+const MASK_SLOTS = BACK_SLOTS + INTEGER_SLOTS;
+const SPAN_SLOTS = MASK_SLOTS + 2;
+const MID_SLOTS = SPAN_SLOTS + ROWS * INTEGER_SLOTS;
+const CONTEXT_SLOTS = MID_SLOTS + ROWS * INTEGER_SLOTS;
+
+/** Bit length of |value| (stream_coding._bit_length). */
+function bitLength(value) {
+  let v = Math.abs(value);
+  let n = 0;
+  while (v >= 1) {
+    n++;
+    v = Math.floor(v / 2);
+  }
+  return n;
+}
 
 export class WireFormatError extends Error {
   constructor(message) {
@@ -41,30 +68,6 @@ export class WireFormatError extends Error {
 
 function fail(message) {
   throw new WireFormatError(message);
-}
-
-/** `count` little-endian unsigned integers of `width` bytes stored as byte planes. */
-export function fromPlanes(bytes, width, count, what) {
-  if (!(bytes instanceof Uint8Array) || bytes.length !== width * count) {
-    fail(`split frame: '${what}' holds ${bytes?.length} bytes, expected ${width * count}`);
-  }
-  const out = width === 2 ? new Uint16Array(count) : new Uint32Array(count);
-  for (let plane = 0; plane < width; plane++) {
-    const shift = 8 * plane;
-    const offset = plane * count;
-    for (let i = 0; i < count; i++) out[i] += bytes[offset + i] * 2 ** shift;
-  }
-  return out;
-}
-
-/** Zigzag-coded uint32 -> int32 in place: 0, 1, 2, 3... -> 0, -1, 1, -2... */
-function unzigzag(values) {
-  const out = new Int32Array(values.length);
-  for (let i = 0; i < values.length; i++) {
-    const v = values[i];
-    out[i] = (v >>> 1) ^ -(v & 1);
-  }
-  return out;
 }
 
 /** A typed array over a copy of msgpack bin bytes (copied: views may be unaligned). */
@@ -176,37 +179,6 @@ export class FrameCutter {
   }
 }
 
-/** zlib (RFC 1950) data -> bytes, with the browser's DecompressionStream. The payload
- * is written straight into the stream: going through a Blob costs the blob registry's
- * round trips, seconds per frame on a large stream. */
-export async function inflate(payload) {
-  const stream = new DecompressionStream("deflate");
-  const writer = stream.writable.getWriter();
-  writer.write(payload).catch(() => {}); // errors surface on the readable side
-  writer.close().catch(() => {});
-  const reader = stream.readable.getReader();
-  const chunks = [];
-  let size = 0;
-  for (;;) {
-    const { done, value } = await reader.read();
-    if (done) break;
-    chunks.push(value);
-    size += value.length;
-    if (size > INFLATED_LIMIT) {
-      reader.cancel().catch(() => {});
-      fail(`split frame inflates beyond ${INFLATED_LIMIT >> 20} MiB`);
-    }
-  }
-  if (chunks.length === 1) return chunks[0];
-  const out = new Uint8Array(size);
-  let at = 0;
-  for (const chunk of chunks) {
-    out.set(chunk, at);
-    at += chunk.length;
-  }
-  return out;
-}
-
 /** msgpack bin bytes of an exact length (any length when `length` is null). */
 function binField(body, key, length) {
   const value = body[key];
@@ -216,8 +188,35 @@ function binField(body, key, length) {
   return value;
 }
 
-/** One inflated frame's msgpack map, fields checked and planes decoded (no mesh state). */
-export function decodeFrame(bytes) {
+const CRC_TABLE = (() => {
+  const table = new Uint32Array(256);
+  for (let n = 0; n < 256; n++) {
+    let c = n;
+    for (let k = 0; k < 8; k++) c = c & 1 ? 0xedb88320 ^ (c >>> 1) : c >>> 1;
+    table[n] = c >>> 0;
+  }
+  return table;
+})();
+
+/** CRC-32 (IEEE 802.3, zlib.crc32) of bytes. */
+export function crc32(bytes) {
+  let c = 0xffffffff;
+  for (let i = 0; i < bytes.length; i++) c = CRC_TABLE[(c ^ bytes[i]) & 0xff] ^ (c >>> 8);
+  return (c ^ 0xffffffff) >>> 0;
+}
+
+/** One frame payload (msgpack map + CRC-32 of it), its counts checked (the splits decode
+ * against the mesh). */
+export function decodeFrame(payload) {
+  const n = payload.length - 4;
+  const stored =
+    n >= 0
+      ? (payload[n] | (payload[n + 1] << 8) | (payload[n + 2] << 16) | (payload[n + 3] << 24)) >>> 0
+      : -1;
+  if (n < 0 || crc32(payload.subarray(0, n)) !== stored) {
+    fail("split frame: the CRC-32 does not match (damaged frame)");
+  }
+  const bytes = payload.subarray(0, n);
   let body;
   try {
     body = decode(bytes);
@@ -229,7 +228,7 @@ export function decodeFrame(bytes) {
   if (body.version !== STREAM_VERSION) {
     fail(`split frame version ${body.version} is no longer read (this reads ${STREAM_VERSION})`);
   }
-  for (const key of ["n_from", "n_to", "faces_from", "bits", "n_new_faces", "n_backs"]) {
+  for (const key of ["n_from", "n_to", "faces_from", "bits", "n_new_faces"]) {
     if (!Number.isInteger(body[key]) || body[key] < 0)
       fail(`split frame: '${key}' is ${body[key]}`);
   }
@@ -237,20 +236,22 @@ export function decodeFrame(bytes) {
   const nNew = body.n_new_faces;
   if (k < 0) fail("split frame: inconsistent counts");
   if (!Array.isArray(body.grid) || body.grid.length !== 6) fail("split frame: bad 'grid'");
+  const coded = binField(body, "splits", null);
+  // As qem_core.stream._check_frame_size: bounded before anything is allocated.
+  if (k > FRAME_SPLIT_LIMIT || nNew > FRAME_FACE_LIMIT) {
+    fail(`split frame: ${k} splits / ${nNew} faces, over the limit`);
+  }
+  if (Math.max(k, nNew) > ITEMS_PER_BYTE * (coded.length + 1)) {
+    fail(`split frame: ${coded.length} coded bytes cannot hold ${k} splits and ${nNew} faces`);
+  }
   return {
     nFrom: body.n_from,
     nTo: body.n_to,
     facesFrom: body.faces_from,
     bits: body.bits,
     grid: body.grid,
-    splitBack: fromPlanes(body.split_back, 4, k, "split_back"),
-    newFaceCounts: fromPlanes(body.new_face_counts, 2, k, "new_face_counts"),
-    faceCodes: binField(body, "face_codes", nNew),
-    thirdCorners: binField(body, "third_corners", null),
-    cornersBack: fromPlanes(body.corners_back, 4, body.n_backs, "corners_back"),
-    relabelMasks: binField(body, "relabel_masks", null),
-    mid: unzigzag(fromPlanes(body.position_mid, 4, 3 * k, "position_mid")),
-    span: unzigzag(fromPlanes(body.position_span, 4, 3 * k, "position_span")),
+    nNewFaces: nNew,
+    coded,
   };
 }
 
@@ -345,6 +346,17 @@ class SplitState {
       const j = c % 3;
       y = forward ? faces[f + ((j + 1) % 3)] : faces[f + ((j + 2) % 3)];
       if (forward && y === xr) return;
+    }
+  }
+
+  /** spread[d] = mean |Q[w] - Q[s]| along axis d over s's nn neighbours nb[0..nn)
+   * (stream_coding._ring_spread): the scale of the split's edges. */
+  ringSpread(s, nn, spread) {
+    const { nb, q } = this;
+    for (let d = 0; d < 3; d++) {
+      let total = 0;
+      for (let j = 0; j < nn; j++) total += Math.abs(q[3 * nb[j] + d] - q[3 * s + d]);
+      spread[d] = nn ? Math.floor(total / nn) : 0;
     }
   }
 
@@ -463,12 +475,7 @@ export class ProgressiveLevels {
     }
     if (nTo > this.nFull) fail(`frame goes to ${nTo} vertices, past the full ${this.nFull}`);
     this.checkGrid(frame);
-    const k = nTo - nFrom;
-    let faces = facesFrom;
-    for (let i = 0; i < k; i++) faces += frame.newFaceCounts[i];
-    if (faces - facesFrom !== frame.faceCodes.length) {
-      fail("split frame: face counts do not match the face codes");
-    }
+    const faces = facesFrom + frame.nNewFaces;
     if (faces > this.fFull) fail(`frame brings ${faces} faces, past the full ${this.fFull}`);
     try {
       this.decodeSplits(frame);
@@ -479,56 +486,60 @@ export class ProgressiveLevels {
     this.received = nTo;
   }
 
-  /** The frame's splits against the received level (stream_coding.decode_connectivity
-   * and uncode_positions), stored as split vertex, deltas and relabelled faces. */
+  /** The frame's splits against the received level (stream_coding.decode_connectivity),
+   * decoded from its range-coded bytes, stored as split vertex, deltas and relabelled
+   * faces. */
   decodeSplits(frame) {
-    const { nFrom, faceCodes, thirdCorners, cornersBack, relabelMasks, mid, span } = frame;
+    const { nFrom } = frame;
     const k = frame.nTo - nFrom;
     const first = nFrom - this.nBase;
     const state = this.state;
     const sf = state.faces;
     const q = state.q;
     const out = this.indices;
+    const coder = new RangeDecoder(frame.coded);
+    const probs = newProbs(CONTEXT_SLOTS);
+    const short = () => fail("split frame: the coded splits end early (truncated or corrupt data)");
     let relabel = this.relabelOffsets[first];
-    let atCode = 0;
-    let atThird = 0;
-    let atBack = 0;
-    let atMask = 0;
     let face = frame.facesFrom;
+    const faceEnd = face + frame.nNewFaces;
     const prediction = [0, 0, 0];
+    const spread = [0, 0, 0];
+    const edge = [0, 0, 0];
     for (let i = 0; i < k; i++) {
+      if (coder.broken) short();
       const t = nFrom + i;
-      const back = frame.splitBack[i];
-      if (back < 1 || back > t) fail(`split ${t}: names a vertex that does not exist yet`);
-      const s = t - back;
+      if (t < 1) fail(`split ${t}: names a vertex that does not exist yet`);
+      const s = coder.uniform(probs, S_SLOTS, t);
       const [nc, nn] = state.gather(s);
-      const count = frame.newFaceCounts[i];
+      state.ringSpread(s, nn, spread);
+      const count = coder.integer(probs, COUNT_SLOTS, false);
+      if (count > faceEnd - face) fail("split frame: the splits' face counts do not add up to n_new_faces");
       let xl = -1;
       let xr = -1;
       const firstNew = face;
+      let previous = 7;
       for (let j = 0; j < count; j++, face++) {
-        const code = faceCodes[atCode++];
+        const code = coder.tree(probs, CODE_SLOTS + 8 * previous, 3);
+        previous = code;
         const f = 3 * face;
         if (code === EXPLICIT_FACE) {
-          if (atBack + 3 > cornersBack.length) fail("split frame: a field ends before the splits do");
           for (let c = 0; c < 3; c++) {
-            const b = cornersBack[atBack++];
+            const b = coder.integer(probs, BACK_SLOTS, false);
             if (b > t) fail(`split ${t}: a new face uses a vertex that does not exist`);
             sf[f + c] = t - b;
           }
           continue;
         }
         if (code > EXPLICIT_FACE) fail(`split frame: bad face code ${code}`);
-        if (atThird >= thirdCorners.length) fail("split frame: a field ends before the splits do");
-        const index = thirdCorners[atThird++];
         let x;
-        if (index === ESCAPE) {
-          if (atBack >= cornersBack.length) fail("split frame: a field ends before the splits do");
-          const b = cornersBack[atBack++];
+        if (coder.bit(probs, ESCAPE_SLOT)) {
+          const b = coder.integer(probs, BACK_SLOTS, false);
           if (b > t) fail(`split ${t}: a new face uses a vertex that does not exist`);
           x = t - b;
-        } else if (index < nn) {
-          x = state.nb[index];
+        } else if (nn > 0) {
+          const nIndex = Math.min(nn, ESCAPE);
+          x = state.nb[coder.uniform(probs, THIRD_SLOTS + Math.min(nIndex, 16) * 8, nIndex)];
         } else {
           fail(`split ${t}: a third corner is not a neighbour of the split vertex`);
         }
@@ -542,14 +553,10 @@ export class ProgressiveLevels {
       }
       out.set(sf.subarray(3 * firstNew, 3 * face), 3 * firstNew); // as born
       state.predict(nc, xl, xr);
-      const nBytes = (nc + 7) >> 3;
-      if (atMask + nBytes > relabelMasks.length) fail("split frame: a field ends before the splits do");
       const mark = state.mark;
-      for (let j = 0; j < nc; j++) mark[j] ^= (relabelMasks[atMask + (j >> 3)] >> (j & 7)) & 1;
-      if (nc & 7 && relabelMasks[atMask + nBytes - 1] >> (nc & 7)) {
-        fail("split frame: a relabel mask sets a bit past the split vertex's corners");
+      if (nc && coder.bit(probs, MASK_SLOTS)) {
+        for (let j = 0; j < nc; j++) mark[j] ^= coder.bit(probs, MASK_SLOTS + 1);
       }
-      atMask += nBytes;
       this.reserveRelabels(relabel + nc);
       for (let j = 0; j < nc; j++) {
         if (!mark[j]) continue;
@@ -558,12 +565,17 @@ export class ProgressiveLevels {
         this.relabelFaces[relabel++] = f;
       }
       for (let c = 3 * firstNew; c < 3 * face; c++) state.link(sf[c], c);
-      // Positions: a + b = 2 (old + mid) + (e & 1), e = b - a = span + prediction.
+      // Positions: e = b - a = span + prediction, a + b = 2 (old + mid) + (e & 1).
       state.spanPrediction(s, t, prediction);
       for (let axis = 0; axis < 3; axis++) {
+        const row = Math.min(bitLength(spread[axis]), ROWS - 1);
+        edge[axis] = coder.integer(probs, SPAN_SLOTS + row * INTEGER_SLOTS, true) + prediction[axis];
+      }
+      for (let axis = 0; axis < 3; axis++) {
+        const row = Math.min(bitLength(edge[axis]), ROWS - 1);
         const old = q[3 * s + axis];
-        const m = mid[axis * k + i] + old;
-        const e = span[axis * k + i] + prediction[axis];
+        const m = coder.integer(probs, MID_SLOTS + row * INTEGER_SLOTS, true) + old;
+        const e = edge[axis];
         const a = (2 * m + (e & 1) - e) / 2;
         q[3 * s + axis] = a;
         q[3 * t + axis] = a + e;
@@ -574,14 +586,11 @@ export class ProgressiveLevels {
       this.levelFaces[first + i + 1] = face;
       this.relabelOffsets[first + i + 1] = relabel;
     }
-    if (
-      atCode !== faceCodes.length ||
-      atThird !== thirdCorners.length ||
-      atBack !== cornersBack.length ||
-      atMask !== relabelMasks.length
-    ) {
-      fail("split frame: a field holds more than the splits use");
+    if (coder.broken) short();
+    if (coder.position !== frame.coded.length) {
+      fail("split frame: the coded splits hold bytes past the last split");
     }
+    if (face !== faceEnd) fail("split frame: the splits' face counts do not add up to n_new_faces");
   }
 
   checkGrid(frame) {
@@ -656,8 +665,9 @@ export class ProgressiveLevels {
 
 /**
  * Stream the splits of `url` into `levels`: fetch + ReadableStream, frames cut as bytes
- * arrive, inflated concurrently, applied in order. onFrame(bytesSoFar) runs after each
- * frame is stored; onBytes(bytesSoFar) after each network chunk.
+ * arrive and applied in order (the first that cannot be stops the stream).
+ * onFrame(bytesSoFar) runs after each frame is stored; onBytes(bytesSoFar) after each
+ * network chunk.
  */
 export async function streamSplits(url, levels, { onFrame, onBytes, signal } = {}) {
   const response = await fetch(url, { signal });
@@ -665,40 +675,18 @@ export async function streamSplits(url, levels, { onFrame, onBytes, signal } = {
   const reader = response.body.getReader();
   const cutter = new FrameCutter();
   let bytes = 0;
-  let failure = null; // the first frame that could not be applied stops the stream
-  let applied = Promise.resolve();
   try {
     for (;;) {
       const { done, value } = await reader.read();
-      if (failure) throw failure;
       if (done) break;
       bytes += value.length;
       onBytes?.(bytes);
       for (const payload of cutter.push(value)) {
-        const inflated = inflate(payload); // starts now; frames are applied in order below
-        inflated.catch(() => {}); // reported through `failure`
-        const seen = bytes;
-        applied = applied.then(async () => {
-          if (failure) return;
-          try {
-            let frame;
-            try {
-              frame = decodeFrame(await inflated);
-            } catch (error) {
-              if (error instanceof WireFormatError) throw error;
-              fail(`split frame does not inflate: ${error.message}`);
-            }
-            levels.addFrame(frame);
-            onFrame?.(seen);
-          } catch (error) {
-            failure = error;
-          }
-        });
+        levels.addFrame(decodeFrame(payload));
+        onFrame?.(bytes);
       }
     }
     cutter.finish();
-    await applied;
-    if (failure) throw failure;
   } catch (error) {
     reader.cancel().catch(() => {});
     throw error;

@@ -29,7 +29,6 @@ from __future__ import annotations
 import shlex
 import sys
 import time
-import zlib
 from collections.abc import Sequence
 from importlib.metadata import version
 from pathlib import Path
@@ -88,28 +87,19 @@ def stream_sizes(progressive_mesh, bits: int) -> dict[str, Any]:
         "frames": len(frame_sizes),
         "stream_bytes": sum(frame_sizes),
         "stream_encode_s": encode_s,
-        "field_bytes": field_bytes(frames),
+        "field_bytes": field_bytes(pm, bits),
         "base_msgpack_bytes": msgpack_bytes(pm.n_base),
         "full_msgpack_bytes": msgpack_bytes(pm.n_full),
     }
 
 
-def field_bytes(frames: Sequence[bytes]) -> dict[str, int]:
-    """Where a stream's bytes go: each byte-string field of the frames' msgpack maps
-    deflated on its own (zlib level 9), summed over the frames, by field name.
+def field_bytes(progressive_mesh, bits: int) -> dict[str, int]:
+    """Where a stream's bytes go: each field of the frames range-coded on its own
+    (``qem_core.stream.range_code_fields`` with that field's flag), summed over the
+    frames, by field name (bench.stream_entropy also gives v2's deflated sizes)."""
+    from .stream_entropy import measure
 
-    A frame is a 4-byte length and a zlib stream of one msgpack map (qem_core.stream);
-    the fields compressed apart add up to a little more than the frames, which deflate
-    them together."""
-    import msgpack
-
-    sizes: dict[str, int] = {}
-    for frame in frames:
-        body = msgpack.unpackb(zlib.decompress(frame[4:]))
-        for name, value in body.items():
-            if isinstance(value, bytes):
-                sizes[name] = sizes.get(name, 0) + len(zlib.compress(value, 9))
-    return sizes
+    return measure(progressive_mesh, bits)["range"]
 
 
 def _single_rate_sizes(mesh: BenchMesh, bits: int, draco_levels: Sequence[int]) -> dict:
@@ -280,7 +270,7 @@ def write_stream_size_report(
 
 
 def _field_lines(entries: Sequence[dict[str, Any]]) -> list[str]:
-    """A table of bytes per split by stream field, each field deflated on its own."""
+    """A table of bytes per split by stream field, each field range-coded on its own."""
     measured = [entry for entry in entries if entry.get("field_bytes")]
     if not measured:
         return []
@@ -299,10 +289,10 @@ def _field_lines(entries: Sequence[dict[str, Any]]) -> list[str]:
     return [
         "## Where the stream's bytes go (bytes per split)",
         "",
-        "Each byte-string field of the frames deflated on its own (zlib level 9) and "
-        "summed over the frames; fields compressed apart add up to a little more than the "
-        "stream, which deflates them together (last column). Field meanings: "
-        "docs/formats.md.",
+        "Each field of the frames range-coded on its own (its contexts are its own, so "
+        "only the 4 flush bytes per frame are counted again in every field) and summed "
+        "over the frames; the stream (last column) also holds each frame's msgpack "
+        "header and CRC-32. Field meanings: docs/formats.md.",
         "",
         *markdown_table(
             ["mesh", *(f"`{name}`" for name in names), "stream"],

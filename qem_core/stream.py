@@ -1,22 +1,22 @@
 """The vertex-split stream: msgpack frames, connectivity and positions coded against the
-mesh being refined, deflated.
+mesh being refined, range-coded.
 
 A stream refining lod(n1) to lod(n2) is a sequence of frames; each frame is
 
-    uint32 little-endian length L, then L bytes of zlib (RFC 1950 "deflate") data
-    holding one msgpack map (format "qem-splits", version 2)
+    uint32 little-endian length L, then L bytes: one msgpack map (format "qem-splits",
+    version 3) followed by the CRC-32 of its bytes
 
-so a browser decodes it with DecompressionStream("deflate"). Positions live on a grid of
-2^bits - 1 steps per axis over the box of every position the progressive mesh uses
-(``grid`` = [origin xyz, step xyz]); the client keeps its mesh as grid integers. Encoder
-and decoder keep the connectivity of the level being refined (per-vertex corner lists),
-so each split codes its new faces' third corners as indices into the split vertex's
-neighbours, its relabelled faces as a mask over the split vertex's corners XOR the fan
-its new faces predict, and its positions as the edge's midpoint against s's old position
-and the edge's span against a prediction from the two rings
-(``_kernels/stream_coding.py``). Integer arrays are stored as byte planes (all low bytes,
-then all next bytes...) so that deflate sees the long runs of zero high bytes.
-docs/formats.md gives every field.
+Positions live on a grid of 2^bits - 1 steps per axis over the box of every position the
+progressive mesh uses (``grid`` = [origin xyz, step xyz]); the client keeps its mesh as
+grid integers. Encoder and decoder keep the connectivity of the level being refined
+(per-vertex corner lists), so each split codes its new faces' third corners as indices
+into the split vertex's neighbours, its relabelled faces as a mask over the split
+vertex's corners XOR the fan its new faces predict, and its positions as the edge's
+midpoint against s's old position and the edge's span against a prediction from the two
+rings (``_kernels/stream_coding.py``). The symbols go through an adaptive binary range
+coder (``_kernels/range_coder.py``) in the order the decoder needs them, with contexts
+the decoder knows from its state (the split vertex's neighbour count, the scale of its
+ring, the edge just decoded). docs/formats.md gives every field.
 """
 
 from __future__ import annotations

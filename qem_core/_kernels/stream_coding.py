@@ -1,5 +1,6 @@
-"""Split-stream (version 2) coding kernels: connectivity relative to the split vertex's
-neighbourhood, positions relative to the split vertex's old position.
+"""Split-stream (version 3) coding kernels: connectivity relative to the split vertex's
+neighbourhood, positions relative to the split vertex's old position, the symbols
+range-coded (``code_splits`` / ``decode_connectivity``, contexts below the constants).
 
 Encoder and decoder keep the same state, the mesh at the level being refined:
 

@@ -1,26 +1,28 @@
 """The vertex-split stream: msgpack frames, connectivity, positions and appearance coded
-against the mesh being refined, deflated.
+against the mesh being refined, range-coded.
 
 A stream refining lod(n1) to lod(n2) is a sequence of frames; each frame is
 
-    uint32 little-endian length L, then L bytes of zlib (RFC 1950 "deflate") data
-    holding one msgpack map (format "qem-splits", version 3)
+    uint32 little-endian length L, then L bytes: one msgpack map (format "qem-splits",
+    version 3) followed by the CRC-32 of its bytes
 
-so a browser decodes it with DecompressionStream("deflate"). Positions live on a grid of
-2^bits - 1 steps per axis over the box of every position the progressive mesh uses
-(``grid`` = [origin xyz, step xyz]); the client keeps its mesh as grid integers. Encoder
-and decoder keep the connectivity of the level being refined (per-vertex corner lists),
-so each split codes its new faces' third corners as indices into the split vertex's
-neighbours, its relabelled faces as a mask over the split vertex's corners XOR the fan
-its new faces predict, and its positions as the edge's midpoint against s's old position
-and the edge's span against a prediction from the two rings
-(``_kernels/stream_coding.py``). A mesh with appearance attributes adds the wedge
-side (``_kernels/wedge_coding.py``): each corner of the split's fan and new faces names
-its wedge by a symbol, mostly 0 (predicted), and the wedges' values, on a grid per
-attribute (``wedge_grid_for``), are residuals against the values they had; a mesh
-without attributes has no wedge keys at all. Integer arrays are stored as byte planes
-(all low bytes, then all next bytes...) so that deflate sees the long runs of zero high
-bytes. docs/formats.md gives every field.
+Positions live on a grid of 2^bits - 1 steps per axis over the box of every position the
+progressive mesh uses (``grid`` = [origin xyz, step xyz]); the client keeps its mesh as
+grid integers. Encoder and decoder keep the connectivity of the level being refined
+(per-vertex corner lists), so each split codes its new faces' third corners as indices
+into the split vertex's neighbours, its relabelled faces as a mask over the split
+vertex's corners XOR the fan its new faces predict, and its positions as the edge's
+midpoint against s's old position and the edge's span against a prediction from the two
+rings (``_kernels/stream_coding.py``). The symbols go through an adaptive binary range
+coder (``_kernels/range_coder.py``) in the order the decoder needs them, with contexts
+the decoder knows from its state (the split vertex's neighbour count, the scale of its
+ring, the edge just decoded). A mesh with appearance attributes adds the wedge side
+(``_kernels/wedge_coding.py``): each corner of the split's fan and new faces names its
+wedge by a symbol, mostly 0 (predicted), and the wedges' values, on a grid per attribute
+(``wedge_grid_for``), are residuals against the values they had; these fields are
+range-coded by the same coder, with contexts of their own, into the frame's ``wedges``
+bytes. A mesh without attributes has no wedge keys at all. docs/formats.md gives every
+field.
 """
 
 from __future__ import annotations
@@ -33,20 +35,32 @@ from typing import NamedTuple
 import msgpack
 import numpy as np
 
+from ._kernels import range_coder
 from ._kernels.stream_coding import (
+    ALL_FIELDS,
     BAD_BACK,
     BAD_CODE,
-    BAD_MASK,
+    BAD_COUNT,
     BAD_THIRD,
     BAD_VERTEX,
+    CONTEXT_SLOTS,
     LONG_DATA,
     NO_CORNER,
     SHORT_DATA,
+    SPLIT_CONTEXT,
+    code_splits,
     decode_connectivity,
     encode_connectivity,
     link_corners,
 )
-from ._kernels.wedge_coding import BAD_VALUE, BAD_WEDGE, BAD_WEDGE_CORNER
+from ._kernels.wedge_coding import (
+    BAD_VALUE,
+    BAD_WEDGE,
+    BAD_WEDGE_CORNER,
+    code_wedge_fields,
+    decode_wedge_fields,
+    wedge_context_slots,
+)
 from .codecs.msgpack_mesh import read_msgpack, read_msgpack_wedges
 from .errors import CorruptFileError, InvalidOptionsError
 from .progressive import ProgressiveMesh, VertexSplits
@@ -61,6 +75,7 @@ __all__ = [
     "Grid",
     "SplitStreamDecoder",
     "encode_split_frames",
+    "split_frame_symbols",
     "grid_for",
     "iter_frames",
     "quantised_wedges",
@@ -70,16 +85,23 @@ __all__ = [
 MEDIA_TYPE = "application/x-qem-splits"
 STREAM_VERSION = 3
 # Frames grow from FIRST_FRAME_SPLITS to SPLITS_PER_FRAME splits (doubling), so that a
-# viewer refines early in the stream and big ranges still deflate well.
+# viewer refines early in the stream (each frame starts its contexts afresh, so the
+# first ones cost a little more).
 FIRST_FRAME_SPLITS = 512
 SPLITS_PER_FRAME = 8192
 _FRAME_LIMIT = 64 << 20
-# Deflate level 6, not 9: on dragon's whole stream 9 is 0.4 % smaller but 3.9x slower
-# (3.8 s against 1.0 s), and encoding is what a viewer waits for.
-_DEFLATE_LEVEL = 6
-# A full frame of 8192 splits inflates to well under 1 MiB; 256 MiB leaves room for
-# explicit faces and long relabel lists while bounding what a hostile frame costs.
-_INFLATED_LIMIT = 256 << 20
+# What a decoder allocates for one frame is bounded: at most this many splits and new
+# faces (a frame of 8192 splits has about 16,000), and at most _ITEMS_PER_BYTE of either
+# per coded byte (a split codes at least 6 decisions, a face at least 3, and a decision
+# costs at least 1/177 bit: 512 per byte is well above what any encoder can reach).
+FRAME_SPLIT_LIMIT = 1 << 16
+FRAME_FACE_LIMIT = 1 << 22
+_ITEMS_PER_BYTE = 512
+# The wedge fields likewise: at most FRAME_WEDGE_LIMIT symbols + backs + values, and at
+# most _WEDGE_ITEMS_PER_BYTE per coded byte of ``wedges`` (each is at least one decision,
+# at least 1/189 bit: 1512 per byte at most).
+FRAME_WEDGE_LIMIT = 1 << 24
+_WEDGE_ITEMS_PER_BYTE = 2048
 
 
 def grid_for(pm: ProgressiveMesh, bits: int = 16) -> Grid:
@@ -89,30 +111,80 @@ def grid_for(pm: ProgressiveMesh, bits: int = 16) -> Grid:
     return Grid.over_box(*pm.position_bounds, bits)
 
 
-def _planes(values: np.ndarray, dtype: str) -> bytes:
-    """Little-endian integers as byte planes."""
-    raw = np.ascontiguousarray(values, dtype=dtype)
-    return raw.view(np.uint8).reshape(-1, raw.dtype.itemsize).T.tobytes()
+class FrameSymbols(NamedTuple):
+    """What one frame codes, before the range coder: ``encode_connectivity``'s arrays
+    (docs/formats.md gives each field) and the per-split contexts from the state."""
+
+    n_from: int
+    split_back: np.ndarray  # (k,) t - s
+    new_face_counts: np.ndarray  # (k,)
+    face_codes: np.ndarray  # (new faces,) 0..6
+    third_corners: np.ndarray  # (faces of code 0-5,) index into nb, or 255
+    corners_back: np.ndarray  # t - corner of escaped and explicit corners
+    relabel_masks: np.ndarray  # ceil(nc / 8) bytes per split
+    position_mid: np.ndarray  # (k, 3)
+    position_span: np.ndarray  # (k, 3)
+    split_context: np.ndarray  # (k, SPLIT_CONTEXT)
+    wedges: WedgeArrays | None = None  # the wedge side (None without attributes)
 
 
-def _from_planes(data: bytes, dtype: str, count: int) -> np.ndarray:
-    itemsize = np.dtype(dtype).itemsize
-    if len(data) != count * itemsize:
-        raise CorruptFileError(
-            f"split frame: a field holds {len(data)} bytes, expected {count * itemsize}"
-        )
-    planes = np.frombuffer(data, np.uint8).reshape(itemsize, count)
-    return np.ascontiguousarray(planes.T).view(dtype).reshape(count)
+def range_code_fields(symbols: FrameSymbols, fields: int = ALL_FIELDS) -> bytes:
+    """The frame's fields range-coded with fresh contexts; ``fields`` picks some of them
+    (``stream_coding.FIELD_*``) to measure them one by one."""
+    capacity = 64 + 16 * symbols.split_back.shape[0] + 8 * symbols.face_codes.shape[0]
+    while True:
+        out = np.empty(capacity, np.uint8)
+        enc = range_coder.new_encoder()
+        code_splits(enc, out, range_coder.new_probs(CONTEXT_SLOTS), fields, *symbols[:-1])
+        written = range_coder.finish(enc, out)
+        if written <= capacity:
+            return out[:written].tobytes()
+        capacity = 2 * written
 
 
-def _zigzag(values: np.ndarray) -> np.ndarray:
-    v = values.astype(np.int64)
-    return ((v << 1) ^ (v >> 63)).astype(np.uint64)
+def range_code_wedges(fields: WedgeArrays) -> bytes:
+    """A frame's wedge fields range-coded with fresh contexts (an empty field costs
+    nothing, so passing one field and empty others measures that field)."""
+    counts = np.require(fields.counts, np.int64, ["C"])
+    symbols = np.require(fields.symbols, np.uint8, ["C"])
+    backs = np.require(fields.backs, np.int64, ["C"])
+    rows = np.require(fields.rows, np.int64, ["C"])
+    capacity = 64 + 2 * counts.size + symbols.shape[0] + 8 * backs.shape[0] + 8 * rows.size
+    while True:
+        out = np.empty(capacity, np.uint8)
+        enc = range_coder.new_encoder()
+        probs = range_coder.new_probs(wedge_context_slots(rows.shape[1]))
+        code_wedge_fields(enc, out, probs, counts, symbols, backs, rows)
+        written = range_coder.finish(enc, out)
+        if written <= capacity:
+            return out[:written].tobytes()
+        capacity = 2 * written
 
 
-def _unzigzag(values: np.ndarray) -> np.ndarray:
-    v = values.astype(np.uint64)
-    return ((v >> np.uint64(1)).astype(np.int64)) ^ -((v & np.uint64(1)).astype(np.int64))
+def _frame_symbols(
+    splits: VertexSplits,
+    state: _State,
+    quantised: np.ndarray,
+    grid: Grid,
+    wedges: WedgeCoder | None = None,
+) -> FrameSymbols:
+    k = splits.split_vertex.shape[0]
+    mid = np.zeros((k, 3), np.int64)
+    span = np.zeros((k, 3), np.int64)
+    split_context = np.zeros((k, SPLIT_CONTEXT), np.int64)
+    codes, thirds, backs, masks, status = encode_connectivity(
+        state.faces, splits.faces_from, state.head, state.nxt, splits.n_from,
+        splits.split_vertex, splits.new_faces, splits.new_face_counts,
+        splits.relabel_offsets, splits.relabel_faces, quantised,
+        grid.quantise(splits.split_positions), mid, span, split_context,
+    )  # fmt: skip
+    if status:
+        raise ValueError("inconsistent splits: a relabelled face has no corner s")
+    split_back = splits.n_from + np.arange(k) - splits.split_vertex
+    return FrameSymbols(
+        splits.n_from, split_back, splits.new_face_counts, codes, thirds, backs, masks,
+        mid, span, split_context, None if wedges is None else wedges.encode(splits),
+    )  # fmt: skip
 
 
 def _encode_frame(
@@ -122,17 +194,7 @@ def _encode_frame(
     grid: Grid,
     wedges: WedgeCoder | None,
 ) -> bytes:
-    k = splits.split_vertex.shape[0]
-    mid = np.zeros((k, 3), np.int64)
-    span = np.zeros((k, 3), np.int64)
-    codes, thirds, backs, masks, status = encode_connectivity(
-        state.faces, splits.faces_from, state.head, state.nxt, splits.n_from,
-        splits.split_vertex, splits.new_faces, splits.new_face_counts,
-        splits.relabel_offsets, splits.relabel_faces, quantised,
-        grid.quantise(splits.split_positions), mid, span,
-    )  # fmt: skip
-    if status:
-        raise ValueError("inconsistent splits: a relabelled face has no corner s")
+    symbols = _frame_symbols(splits, state, quantised, grid, wedges)
     body = {
         "format": "qem-splits",
         "version": STREAM_VERSION,
@@ -142,19 +204,12 @@ def _encode_frame(
         "bits": grid.bits,
         "grid": [*map(float, grid.origin), *map(float, grid.step)],
         "n_new_faces": int(splits.new_faces.shape[0]),
-        "n_backs": int(backs.shape[0]),
-        "split_back": _planes(splits.n_from + np.arange(k) - splits.split_vertex, "<u4"),
-        "new_face_counts": _planes(splits.new_face_counts, "<u2"),
-        "face_codes": codes.tobytes(),
-        "third_corners": thirds.tobytes(),
-        "corners_back": _planes(backs, "<u4"),
-        "relabel_masks": masks.tobytes(),
-        "position_mid": _planes(_zigzag(mid.T.reshape(-1)), "<u4"),
-        "position_span": _planes(_zigzag(span.T.reshape(-1)), "<u4"),
+        "splits": range_code_fields(symbols),
     }
     if wedges is not None:
-        body.update(_wedge_body(wedges.grid, splits.wedges.wedges_from, wedges.encode(splits)))
-    payload = zlib.compress(msgpack.packb(body), _DEFLATE_LEVEL)
+        body.update(_wedge_body(wedges.grid, splits.wedges.wedges_from, symbols.wedges))
+    payload = msgpack.packb(body)
+    payload += struct.pack("<I", zlib.crc32(payload))
     return struct.pack("<I", len(payload)) + payload
 
 
@@ -176,48 +231,48 @@ def _state(faces: np.ndarray, n_vertices: int, face_capacity: int) -> _State | N
 
 def _wedge_body(grid: AttributeGrid, wedges_from: int, fields: WedgeArrays) -> dict:
     """A frame's wedge keys (absent from the frames of a mesh without attributes)."""
-    if fields.counts.max(initial=0) > 0xFFFF:
-        raise ValueError("a split has more than 65535 new wedges or extra records")
     return {
         "wedge_grid": grid.to_dict(),
         "wedges_from": int(wedges_from),
-        "n_wedge_rows": int(fields.rows.shape[0]),
+        "n_wedge_symbols": int(fields.symbols.shape[0]),
         "n_wedge_backs": int(fields.backs.shape[0]),
-        "wedge_counts": _planes(fields.counts.reshape(-1), "<u2"),
-        "wedge_corners": fields.symbols.tobytes(),
-        "wedge_backs": _planes(fields.backs, "<u4"),
-        "wedge_values": _planes(_zigzag(fields.rows.T.reshape(-1)), "<u4"),
+        "n_wedge_rows": int(fields.rows.shape[0]),
+        "wedges": range_code_wedges(fields),
     }
 
 
 def _wedge_fields(body: dict, k: int) -> tuple[AttributeGrid, int, WedgeArrays]:
-    """The grid, wedges_from and arrays of a frame's wedge keys (KeyError, TypeError...
-    on a missing or mistyped key, CorruptFileError on inconsistent lengths)."""
+    """The grid, wedges_from and decoded arrays of a frame's wedge keys (KeyError,
+    TypeError... on a missing or mistyped key, CorruptFileError on counts the bytes
+    cannot hold or bytes that do not decode)."""
     try:
         grid = AttributeGrid.from_dict(body["wedge_grid"])
     except (ValueError, AttributeError) as error:
         raise CorruptFileError(f"split frame: bad 'wedge_grid' ({error})") from None
     width = int(sum(grid.widths))
-    wedges_from, n_rows, n_backs = body["wedges_from"], body["n_wedge_rows"], body["n_wedge_backs"]
-    for value in (wedges_from, n_rows, n_backs):
+    wedges_from, n_symbols = body["wedges_from"], body["n_wedge_symbols"]
+    n_backs, n_rows = body["n_wedge_backs"], body["n_wedge_rows"]
+    for value in (wedges_from, n_symbols, n_backs, n_rows):
         if not isinstance(value, int) or value < 0:
             raise CorruptFileError(f"split frame: a wedge count is {value!r}")
-    counts = _from_planes(body["wedge_counts"], "<u2", 3 * k).astype(np.int64).reshape(3, k)
+    coded = np.frombuffer(_bin(body["wedges"], None, "wedges"), np.uint8)
+    # Bounded before decode_wedge_fields allocates them (as _check_frame_size).
+    items = n_symbols + n_backs + width * n_rows + 3 * k
+    if items > FRAME_WEDGE_LIMIT or items > _WEDGE_ITEMS_PER_BYTE * (coded.shape[0] + 1):
+        raise CorruptFileError(
+            f"split frame: the coded wedges ({coded.shape[0]} bytes) cannot hold {n_symbols} "
+            f"symbols, {n_backs} backs and {n_rows} value rows"
+        )
+    status, counts, symbols, backs, rows = decode_wedge_fields(
+        coded, k, n_symbols, n_backs, n_rows, width
+    )
+    if status:
+        raise CorruptFileError(f"split frame: {_WEDGE_FIELD_STATUS[status]}")
     # Each new wedge and extra update has a value row: checked before the decoder
     # allocates wedges for them.
     if int(counts[0].sum() + counts[1].sum()) > n_rows:
         raise CorruptFileError("split frame: more new wedges and updates than value rows")
-    rows = _unzigzag(_from_planes(body["wedge_values"], "<u4", width * n_rows))
-    return (
-        grid,
-        wedges_from,
-        WedgeArrays(
-            counts,
-            np.frombuffer(_bin(body["wedge_corners"], None, "wedge_corners"), np.uint8),
-            _from_planes(body["wedge_backs"], "<u4", n_backs).astype(np.int64),
-            rows.reshape(width, n_rows).T,
-        ),
-    )
+    return grid, wedges_from, WedgeArrays(counts, symbols, backs, rows)
 
 
 def encode_split_frames(
@@ -226,9 +281,14 @@ def encode_split_frames(
     n_to: int,
     bits: int = 16,
     splits_per_frame: int = SPLITS_PER_FRAME,
+    _frame=_encode_frame,
 ) -> Iterator[bytes]:
     """Frames of the splits refining lod(n_from) to lod(n_to), generated lazily."""
     grid = grid_for(pm, bits)
+    if not 1 <= splits_per_frame <= FRAME_SPLIT_LIMIT:
+        raise InvalidOptionsError(
+            f"splits_per_frame={splits_per_frame} must be in [1, {FRAME_SPLIT_LIMIT}]"
+        )
     n_from, n_to = pm.clamp(n_from), pm.clamp(n_to)
     if n_from > n_to:
         raise InvalidOptionsError(f"from={n_from} must not exceed to={n_to}")
@@ -248,8 +308,17 @@ def encode_split_frames(
     while start < n_to:
         stop = min(start + frame_splits, n_to)
         frame_splits = min(2 * frame_splits, splits_per_frame)
-        yield _encode_frame(pm.splits(start, stop), state, quantised, grid, wedges)
+        yield _frame(pm.splits(start, stop), state, quantised, grid, wedges)
         start = stop
+
+
+def split_frame_symbols(
+    pm: ProgressiveMesh, n_from: int, n_to: int, bits: int = 16, **options
+) -> Iterator[FrameSymbols]:
+    """What each frame of ``encode_split_frames`` codes, before the range coder (to
+    measure the fields, and to look at them in tests), its wedge arrays included for a
+    mesh with attributes."""
+    return encode_split_frames(pm, n_from, n_to, bits, **options, _frame=_frame_symbols)
 
 
 def iter_frames(chunks: Iterable[bytes]) -> Iterator[bytes]:
@@ -267,18 +336,6 @@ def iter_frames(chunks: Iterable[bytes]) -> Iterator[bytes]:
             del buffer[: 4 + length]
     if buffer:
         raise CorruptFileError(f"split stream ends inside a frame ({len(buffer)} bytes left)")
-
-
-def _inflate(payload: bytes) -> bytes:
-    """The frame's deflated body, refused beyond _INFLATED_LIMIT bytes: a small frame must
-    not be able to expand into gigabytes (a deflate bomb)."""
-    inflater = zlib.decompressobj()
-    body = inflater.decompress(payload, _INFLATED_LIMIT)
-    if inflater.unconsumed_tail:
-        raise CorruptFileError(f"split frame inflates beyond {_INFLATED_LIMIT >> 20} MiB")
-    if not inflater.eof:
-        raise CorruptFileError("split frame: the deflate data is truncated")
-    return body
 
 
 class SplitStreamDecoder:
@@ -342,9 +399,11 @@ class SplitStreamDecoder:
         return self.wedge_grid.dequantise(self.quantised_values)
 
     def feed(self, payload: bytes) -> None:
+        if len(payload) < 4 or zlib.crc32(payload[:-4]) != struct.unpack("<I", payload[-4:])[0]:
+            raise CorruptFileError("split frame: the CRC-32 does not match (damaged frame)")
         try:
-            body = msgpack.unpackb(_inflate(payload))
-            if body.get("format") != "qem-splits":
+            body = msgpack.unpackb(payload[:-4])
+            if not isinstance(body, dict) or body.get("format") != "qem-splits":
                 raise CorruptFileError("not a qem-splits frame")
             version = body["version"]
             if not isinstance(version, int) or version > STREAM_VERSION:
@@ -356,8 +415,8 @@ class SplitStreamDecoder:
                     f"split frame version {version} is no longer read (this reads {STREAM_VERSION})"
                 )
             n_from, n_to, faces_from = body["n_from"], body["n_to"], body["faces_from"]
-            n_new, n_backs = body["n_new_faces"], body["n_backs"]
-            for value in (n_from, n_to, faces_from, n_new, n_backs):
+            n_new = body["n_new_faces"]
+            for value in (n_from, n_to, faces_from, n_new):
                 if not isinstance(value, int) or value < 0:
                     raise CorruptFileError(f"split frame: a count is {value!r}")
             grid_values = np.asarray(body["grid"], np.float64)
@@ -372,16 +431,8 @@ class SplitStreamDecoder:
                     f"frame refines {n_from} vertices / {faces_from} faces, the mesh has "
                     f"{self.n_vertices} / {self.faces.shape[0]}"
                 )
-            split_back = _from_planes(body["split_back"], "<u4", k).astype(np.int64)
-            counts = _from_planes(body["new_face_counts"], "<u2", k).astype(np.int64)
-            if int(counts.sum()) != n_new:
-                raise CorruptFileError("split frame: face counts do not add up to n_new_faces")
-            codes = np.frombuffer(_bin(body["face_codes"], n_new, "face_codes"), np.uint8)
-            thirds = np.frombuffer(_bin(body["third_corners"], None, "third_corners"), np.uint8)
-            backs = _from_planes(body["corners_back"], "<u4", n_backs).astype(np.int64)
-            masks = np.frombuffer(_bin(body["relabel_masks"], None, "relabel_masks"), np.uint8)
-            mid = _unzigzag(_from_planes(body["position_mid"], "<u4", 3 * k))
-            span = _unzigzag(_from_planes(body["position_span"], "<u4", 3 * k))
+            coded = np.frombuffer(_bin(body["splits"], None, "splits"), np.uint8)
+            _check_frame_size(k, n_new, coded.shape[0])
             wedge_fields = None
             if self.face_wedges is not None:
                 if "wedge_grid" not in body:
@@ -391,7 +442,7 @@ class SplitStreamDecoder:
                 wedge_fields = _wedge_fields(body, k)
         except CorruptFileError:
             raise
-        except Exception as exc:  # zlib, msgpack, KeyError, TypeError...
+        except Exception as exc:  # msgpack, KeyError, TypeError...
             raise CorruptFileError(f"unreadable split frame: {exc}") from None
         wedges = None
         if wedge_fields is not None:
@@ -402,10 +453,10 @@ class SplitStreamDecoder:
         quantised = np.zeros((n_to, 3), np.int64)
         quantised[:n_from] = self.quantised
         born = np.zeros((n_new, 3), np.int32)
+        counts = np.zeros(k, np.int64)
         status, split_vertex, relabel_counts, relabel_faces = decode_connectivity(
-            state.faces, faces_from, state.head, state.nxt, n_from, split_back, counts,
-            codes, thirds, backs, masks, quantised, mid.reshape(3, k).T.copy(),
-            span.reshape(3, k).T.copy(), born,
+            state.faces, faces_from, state.head, state.nxt, n_from, k, n_new, coded, quantised,
+            born, counts,
         )  # fmt: skip
         if status:
             raise CorruptFileError(f"split frame: {_STATUS[status]}")
@@ -416,7 +467,7 @@ class SplitStreamDecoder:
             )  # fmt: skip
             status = wedges.decode(wedge_fields[2], run)
             if status:
-                raise CorruptFileError(f"split frame: {_STATUS[status]}")
+                raise CorruptFileError(f"split frame: {_WEDGE_STATUS.get(status, _STATUS[status])}")
             self.face_wedges = wedges.face_wedges
             self.quantised_values = wedges.values
             self.wedge_grid = wedges.grid
@@ -447,20 +498,47 @@ class SplitStreamDecoder:
         return WedgeCoder(grid, connectivity, self.face_wedges, self.quantised_values, capacity)
 
 
+def _check_frame_size(n_splits: int, n_new_faces: int, n_bytes: int) -> None:
+    """Refuse counts no frame of n_bytes can hold, before allocating for them: every
+    split codes at least six decisions and every face three, each at least 1/177 bit
+    (range_coder), so a frame holds far fewer than _ITEMS_PER_BYTE of either per byte."""
+    if n_splits > FRAME_SPLIT_LIMIT or n_new_faces > FRAME_FACE_LIMIT:
+        raise CorruptFileError(
+            f"split frame: {n_splits} splits / {n_new_faces} faces, over the limit "
+            f"({FRAME_SPLIT_LIMIT} / {FRAME_FACE_LIMIT})"
+        )
+    if max(n_splits, n_new_faces) > _ITEMS_PER_BYTE * (n_bytes + 1):
+        raise CorruptFileError(
+            f"split frame: {n_bytes} coded bytes cannot hold {n_splits} splits and "
+            f"{n_new_faces} faces"
+        )
+
+
 def _bin(value, length: int | None, name: str) -> bytes:
     if not isinstance(value, bytes) or (length is not None and len(value) != length):
         raise CorruptFileError(f"split frame: {name!r} is not {length} bytes")
     return value
 
 
+_WEDGE_FIELD_STATUS = {
+    SHORT_DATA: "the coded wedges end early (truncated or corrupt data)",
+    LONG_DATA: "the coded wedges hold bytes past the last value",
+}
+
+# code_wedges' statuses where they differ from the splits' (its fields are arrays).
+_WEDGE_STATUS = {
+    SHORT_DATA: "a field ends before the splits do",
+    LONG_DATA: "a field holds more than the splits use",
+}
+
 _STATUS = {
     BAD_VERTEX: "a split names a vertex that does not exist yet",
+    BAD_COUNT: "the splits' face counts do not add up to n_new_faces",
     BAD_CODE: "a face code is not 0..6",
     BAD_THIRD: "a third corner is not a neighbour of the split vertex",
     BAD_BACK: "a new face names a vertex that does not exist yet",
-    SHORT_DATA: "a field ends before the splits do",
-    LONG_DATA: "a field holds more than the splits use",
-    BAD_MASK: "a relabel mask sets a bit past the split vertex's corners",
+    SHORT_DATA: "the coded splits end early (truncated or corrupt data)",
+    LONG_DATA: "the coded splits hold bytes past the last split",
     NO_CORNER: "a relabelled face has no corner s",
     BAD_WEDGE: "a corner or update names a wedge that does not exist",
     BAD_WEDGE_CORNER: "a wedge relabel names a corner that does not exist",

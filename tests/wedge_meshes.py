@@ -4,6 +4,10 @@ normals."""
 import numpy as np
 
 import qem_core
+from qem_core._kernels.wedge_coding import decode_wedge_fields
+from qem_core.quantise import AttributeGrid
+from qem_core.stream import range_code_wedges
+from qem_core.wedge_stream import WedgeArrays
 
 
 def seamed_mesh(
@@ -37,3 +41,28 @@ def seamed_mesh(
         vertex_attributes={k: v.astype(np.float32) for k, v in attributes.items()},
         corner_uvs=corner_uvs.astype(np.float32),
     )
+
+
+def wedge_arrays(body: dict):
+    """The decoded wedge fields of a frame's msgpack map (a `WedgeArrays`)."""
+    width = int(sum(AttributeGrid.from_dict(body["wedge_grid"]).widths))
+    k = body["n_to"] - body["n_from"]
+    coded = np.frombuffer(body["wedges"], np.uint8)
+    status, *arrays = decode_wedge_fields(
+        coded, k, body["n_wedge_symbols"], body["n_wedge_backs"], body["n_wedge_rows"], width
+    )
+    assert status == 0
+    return WedgeArrays(*arrays)
+
+
+def with_wedge_arrays(body: dict, change) -> dict:
+    """The frame map with its wedge fields replaced by change(wedge_arrays(body)),
+    range-coded again (counts and all): a frame that lies about its wedges, well coded."""
+    fields = change(wedge_arrays(body))
+    return {
+        **body,
+        "n_wedge_symbols": int(fields.symbols.shape[0]),
+        "n_wedge_backs": int(fields.backs.shape[0]),
+        "n_wedge_rows": int(fields.rows.shape[0]),
+        "wedges": range_code_wedges(fields),
+    }

@@ -1,5 +1,6 @@
-"""Split-stream (version 2) coding kernels: connectivity relative to the split vertex's
-neighbourhood, positions relative to the split vertex's old position.
+"""Split-stream (version 3) coding kernels: connectivity relative to the split vertex's
+neighbourhood, positions relative to the split vertex's old position, the symbols
+range-coded (``code_splits`` / ``decode_connectivity``, contexts below the constants).
 
 Encoder and decoder keep the same state, the mesh at the level being refined:
 
@@ -27,6 +28,8 @@ index (``cs``) and the distinct other vertices of s's faces sorted (``nb``):
 import numba
 import numpy as np
 
+from . import range_coder as rc
+
 ESCAPE = 255
 EXPLICIT = 6
 # The fan walk is quadratic in the number of corners of s; beyond this many the
@@ -45,6 +48,39 @@ SHORT_DATA = 5
 LONG_DATA = 6
 BAD_MASK = 7
 NO_CORNER = 8
+BAD_COUNT = 9
+
+# Version 3 codes the fields with the adaptive range coder (range_coder.py), split by
+# split in the order the decoder needs them. The contexts of each field, as slots of one
+# probability array (a block per field, ``rows`` blocks where a context picks a row):
+_ROWS = 21  # magnitude classes 0..20: bit lengths of a ring spread or an edge
+_S_SLOTS = 0  # s in [0, t): uniform, bit-position contexts
+_COUNT_SLOTS = _S_SLOTS + rc.UNIFORM_SLOTS  # new faces of the split: integer
+_CODE_SLOTS = _COUNT_SLOTS + rc.INTEGER_SLOTS  # face code: 3-bit tree per previous code
+_ESCAPE_SLOT = _CODE_SLOTS + 8 * 8  # third corner escaped?
+_THIRD_SLOTS = _ESCAPE_SLOT + 1  # its index in nb: uniform, a row per min(nn, 16)
+_BACK_SLOTS = _THIRD_SLOTS + 17 * 8  # corners_back values: integer
+_MASK_SLOTS = _BACK_SLOTS + rc.INTEGER_SLOTS  # relabel mask: "any bit set?", then its bits
+_SPAN_SLOTS = _MASK_SLOTS + 2  # position_span: signed integer, row by the ring spread
+_MID_SLOTS = _SPAN_SLOTS + _ROWS * rc.INTEGER_SLOTS  # position_mid: row by the edge
+CONTEXT_SLOTS = _MID_SLOTS + _ROWS * rc.INTEGER_SLOTS
+
+# Field flags of ``code_splits`` (which fields to code: all for a frame, one at a time
+# to measure a field; each field has contexts of its own, so its bytes do not depend on
+# the others).
+FIELD_SPLIT_BACK = 1
+FIELD_FACE_COUNTS = 2
+FIELD_FACE_CODES = 4
+FIELD_THIRD_CORNERS = 8
+FIELD_CORNERS_BACK = 16
+FIELD_RELABEL_MASKS = 32
+FIELD_POSITION_SPAN = 64
+FIELD_POSITION_MID = 128
+ALL_FIELDS = 255
+# The split's values that a context needs and the decoder knows from its state: nn, nc,
+# the ring spread per axis (mean |Q[w] - Q[s]| over s's neighbours w before the split),
+# and the edge t - s_new per axis.
+SPLIT_CONTEXT = 8
 
 
 @numba.njit(cache=True)
@@ -278,6 +314,43 @@ def _grow(array, need):
 
 
 @numba.njit(cache=True)
+def _bit_length(value):
+    value = abs(value)
+    n = 0
+    while value:
+        n += 1
+        value >>= 1
+    return n
+
+
+@numba.njit(cache=True)
+def _ring_spread(quantised, s, nb, nn, context):
+    """context[2 + d] = mean |Q[w, d] - Q[s, d]| over s's neighbours w (0 without any):
+    the scale of the split's edges along each axis."""
+    for d in range(3):
+        total = 0
+        for q in range(nn):
+            total += abs(quantised[nb[q], d] - quantised[s, d])
+        context[2 + d] = total // nn if nn else 0
+
+
+@numba.njit(cache=True)
+def _span_row(context, d):
+    return _SPAN_SLOTS + min(_bit_length(context[2 + d]), _ROWS - 1) * rc.INTEGER_SLOTS
+
+
+@numba.njit(cache=True)
+def _mid_row(context, d):
+    """The midpoint's offset from the collapsed vertex grows with the edge."""
+    return _MID_SLOTS + min(_bit_length(context[5 + d]), _ROWS - 1) * rc.INTEGER_SLOTS
+
+
+@numba.njit(cache=True)
+def _third_row(nn):
+    return _THIRD_SLOTS + min(nn, 16) * 8
+
+
+@numba.njit(cache=True)
 def encode_connectivity(
     faces,
     faces_from,
@@ -293,9 +366,11 @@ def encode_connectivity(
     split_quantised,
     mid,
     span,
+    split_context,
 ):
     """Code splits n_from.. against the state (faces[:faces_from], head, nxt), which is
     advanced to the level after the last split (faces must have room for the new faces).
+    split_context (K, SPLIT_CONTEXT) receives what ``code_splits`` needs of the state.
 
     Positions: ``quantised`` (>= n_to, 3) int64 holds the level's grid positions and is
     advanced too; split_quantised (K, 2, 3) are the new s and t; written out per split:
@@ -325,6 +400,9 @@ def encode_connectivity(
         t = n_from + i
         cs, nb, mark = _scratch(head, nxt, s, cs, nb, mark)
         nc, nn = _gather(faces, head, nxt, s, cs, nb)
+        split_context[i, 0] = nn
+        split_context[i, 1] = nc
+        _ring_spread(quantised, s, nb, nn, split_context[i])
         xl = -1
         xr = -1
         for q in range(new, new + new_face_counts[i]):
@@ -390,9 +468,83 @@ def encode_connectivity(
             b = split_quantised[i, 1, d]
             mid[i, d] = ((a + b) >> 1) - old
             span[i, d] = b - a - prediction[d]
+            split_context[i, 5 + d] = b - a
             quantised[s, d] = a
             quantised[t, d] = b
     return codes, thirds[:n_third], backs[:n_back], masks[:n_mask], 0
+
+
+@numba.njit(cache=True)
+def code_splits(
+    enc,
+    out,
+    probs,
+    fields,
+    n_from,
+    split_back,
+    new_face_counts,
+    codes,
+    thirds,
+    backs,
+    masks,
+    mid,
+    span,
+    split_context,
+):
+    """Range-code what ``encode_connectivity`` produced, split by split, in the order
+    ``decode_connectivity`` reads it: s, the face count, each face's code and third corner
+    (or corners_back), the relabel mask, position_span, position_mid. Only the fields in
+    the ``fields`` flags are coded (all of them for a frame)."""
+    at_face = 0
+    at_third = 0
+    at_back = 0
+    at_mask = 0
+    for i in range(split_back.shape[0]):
+        t = n_from + i
+        context = split_context[i]
+        if fields & FIELD_SPLIT_BACK:
+            rc.encode_uniform(enc, out, probs, _S_SLOTS, t - split_back[i], t)
+        count = new_face_counts[i]
+        if fields & FIELD_FACE_COUNTS:
+            rc.encode_integer(enc, out, probs, _COUNT_SLOTS, count, False)
+        previous = 7
+        for _ in range(count):
+            code = codes[at_face]
+            at_face += 1
+            if fields & FIELD_FACE_CODES:
+                rc.encode_tree(enc, out, probs, _CODE_SLOTS + 8 * previous, 3, code)
+            previous = code
+            n_backs = 3 if code == EXPLICIT else 0
+            if code < EXPLICIT:
+                index = thirds[at_third]
+                at_third += 1
+                if fields & FIELD_THIRD_CORNERS:
+                    rc.encode_bit(enc, out, probs, _ESCAPE_SLOT, index == ESCAPE)
+                    if index != ESCAPE:
+                        nn = min(context[0], ESCAPE)
+                        rc.encode_uniform(enc, out, probs, _third_row(nn), index, nn)
+                n_backs = 1 if index == ESCAPE else 0
+            for _ in range(n_backs):
+                if fields & FIELD_CORNERS_BACK:
+                    rc.encode_integer(enc, out, probs, _BACK_SLOTS, backs[at_back], False)
+                at_back += 1
+        nc = context[1]
+        if fields & FIELD_RELABEL_MASKS and nc:
+            any_set = False
+            for q in range(nc):
+                any_set |= (masks[at_mask + q // 8] >> (q % 8)) & 1 == 1
+            rc.encode_bit(enc, out, probs, _MASK_SLOTS, any_set)
+            if any_set:
+                for q in range(nc):
+                    bit = (masks[at_mask + q // 8] >> (q % 8)) & 1
+                    rc.encode_bit(enc, out, probs, _MASK_SLOTS + 1, bit)
+        at_mask += (nc + 7) // 8
+        for d in range(3):
+            if fields & FIELD_POSITION_SPAN:
+                rc.encode_integer(enc, out, probs, _span_row(context, d), span[i, d], True)
+        for d in range(3):
+            if fields & FIELD_POSITION_MID:
+                rc.encode_integer(enc, out, probs, _mid_row(context, d), mid[i, d], True)
 
 
 @numba.njit(cache=True)
@@ -402,27 +554,29 @@ def decode_connectivity(
     head,
     nxt,
     n_from,
-    split_back,
-    new_face_counts,
-    codes,
-    thirds,
-    backs,
-    masks,
+    n_splits,
+    n_new_faces,
+    data,
     quantised,
-    mid,
-    span,
     born_faces,
+    face_counts,
 ):
-    """Inverse of ``encode_connectivity``: advances the state (faces must have room for
-    sum(new_face_counts) more faces, head and quantised for the new vertices). The new
-    faces as born (before later splits relabel them) go to born_faces (>= new faces, 3).
+    """Inverse of ``encode_connectivity`` + ``code_splits``: decodes n_splits splits from
+    the range-coded ``data`` (uint8) and advances the state (faces must have room for
+    n_new_faces more faces, head and quantised for the new vertices). What the wedge
+    side needs of the splits goes to born_faces (>= n_new_faces, 3): the new faces as
+    born, before later splits relabel them, and face_counts (>= n_splits,): each split's
+    new faces.
 
-    Returns (status, split_vertex, relabel_counts, relabel_faces): status 0 when every
-    field was consumed exactly and every index was in range, else a status code (the
-    state is then partly advanced and must be dropped).
+    Returns (status, split_vertex, relabel_counts, relabel_faces): status 0 when the
+    splits used every byte of data, exactly n_new_faces faces and only indices in range,
+    else a status code (the state is then partly advanced and must be dropped).
     """
-    k = split_back.shape[0]
+    k = n_splits
+    probs = np.full(CONTEXT_SLOTS, rc.HALF, np.uint16)
+    dec = rc.start_decoder(data, 0)
     prediction = np.zeros(3, np.int64)
+    context = np.zeros(SPLIT_CONTEXT, np.int64)
     split_vertex = np.zeros(k, np.int32)
     relabel_counts = np.zeros(k, np.int64)
     relabel_faces = np.empty(max(16, 2 * k), np.int32)
@@ -430,54 +584,48 @@ def decode_connectivity(
     nb = np.empty(32, np.int64)
     mark = np.empty(16, np.uint8)
     n_relabel = 0
-    at_code = 0
-    at_third = 0
-    at_back = 0
-    at_mask = 0
     face = faces_from
+    face_end = faces_from + n_new_faces
     for i in range(k):
+        if dec[rc.BROKEN]:
+            return SHORT_DATA, split_vertex, relabel_counts, relabel_faces[:n_relabel]
         t = n_from + i
-        back = np.int64(split_back[i])
-        if back < 1 or back > t:
+        if t < 1:
             return BAD_VERTEX, split_vertex, relabel_counts, relabel_faces[:n_relabel]
-        s = t - back
+        s = rc.decode_uniform(dec, data, probs, _S_SLOTS, t)
         split_vertex[i] = s
         cs, nb, mark = _scratch(head, nxt, s, cs, nb, mark)
         nc, nn = _gather(faces, head, nxt, s, cs, nb)
-        count = np.int64(new_face_counts[i])
-        if at_code + count > codes.shape[0]:
-            return SHORT_DATA, split_vertex, relabel_counts, relabel_faces[:n_relabel]
+        context[0] = nn
+        context[1] = nc
+        _ring_spread(quantised, s, nb, nn, context)
+        count = rc.decode_integer(dec, data, probs, _COUNT_SLOTS, False)
+        if count > face_end - face:
+            return BAD_COUNT, split_vertex, relabel_counts, relabel_faces[:n_relabel]
+        face_counts[i] = count
         xl = -1
         xr = -1
         first_new = face
+        previous = 7
+        corner = np.zeros(3, np.int64)
         for _ in range(count):
-            code = codes[at_code]
-            at_code += 1
-            corner = np.zeros(3, np.int64)
+            code = rc.decode_tree(dec, data, probs, _CODE_SLOTS + 8 * previous, 3)
+            previous = code
             if code == EXPLICIT:
-                if at_back + 3 > backs.shape[0]:
-                    return SHORT_DATA, split_vertex, relabel_counts, relabel_faces[:n_relabel]
                 for r in range(3):
-                    b = backs[at_back]
-                    at_back += 1
-                    if b < 0 or b > t:
+                    b = rc.decode_integer(dec, data, probs, _BACK_SLOTS, False)
+                    if b > t:
                         return BAD_BACK, split_vertex, relabel_counts, relabel_faces[:n_relabel]
                     corner[r] = t - b
             elif code < EXPLICIT:
-                if at_third >= thirds.shape[0]:
-                    return SHORT_DATA, split_vertex, relabel_counts, relabel_faces[:n_relabel]
-                index = thirds[at_third]
-                at_third += 1
-                if index == ESCAPE:
-                    if at_back >= backs.shape[0]:
-                        return SHORT_DATA, split_vertex, relabel_counts, relabel_faces[:n_relabel]
-                    b = backs[at_back]
-                    at_back += 1
-                    if b < 0 or b > t:
+                if rc.decode_bit(dec, data, probs, _ESCAPE_SLOT):
+                    b = rc.decode_integer(dec, data, probs, _BACK_SLOTS, False)
+                    if b > t:
                         return BAD_BACK, split_vertex, relabel_counts, relabel_faces[:n_relabel]
                     x = t - b
-                elif index < nn:
-                    x = nb[index]
+                elif nn > 0:
+                    n_index = min(nn, ESCAPE)
+                    x = nb[rc.decode_uniform(dec, data, probs, _third_row(n_index), n_index)]
                 else:
                     return BAD_THIRD, split_vertex, relabel_counts, relabel_faces[:n_relabel]
                 r = code % 3
@@ -497,15 +645,9 @@ def decode_connectivity(
                 born_faces[face - faces_from, j] = corner[j]
             face += 1
         _predict(faces, s, cs, nc, xl, xr, mark)
-        n_bytes = (nc + 7) // 8
-        if at_mask + n_bytes > masks.shape[0]:
-            return SHORT_DATA, split_vertex, relabel_counts, relabel_faces[:n_relabel]
-        for q in range(nc):
-            bit = (masks[at_mask + q // 8] >> (q % 8)) & 1
-            mark[q] ^= bit
-        if nc % 8 and masks[at_mask + n_bytes - 1] >> (nc % 8):
-            return BAD_MASK, split_vertex, relabel_counts, relabel_faces[:n_relabel]
-        at_mask += n_bytes
+        if nc and rc.decode_bit(dec, data, probs, _MASK_SLOTS):
+            for q in range(nc):
+                mark[q] ^= rc.decode_bit(dec, data, probs, _MASK_SLOTS + 1)
         relabel_faces = _grow(relabel_faces, n_relabel + nc)
         for q in range(nc):
             if mark[q]:
@@ -524,15 +666,20 @@ def decode_connectivity(
         nb = _ring_room(head, nxt, s, t, nb)
         _span_prediction(faces, head, nxt, s, t, quantised, nb, prediction)
         for d in range(3):
+            e = rc.decode_integer(dec, data, probs, _span_row(context, d), True)
+            context[5 + d] = e + prediction[d]
+        for d in range(3):
             old = quantised[s, d]
-            m = mid[i, d] + old
-            e = span[i, d] + prediction[d]
+            m = rc.decode_integer(dec, data, probs, _mid_row(context, d), True) + old
+            e = context[5 + d]
             # a + b = 2m + (e & 1) and b - a = e
             a = (2 * m + (e & 1) - e) >> 1
             quantised[s, d] = a
             quantised[t, d] = a + e
-    if at_code != codes.shape[0] or at_third != thirds.shape[0]:
+    if dec[rc.BROKEN]:
+        return SHORT_DATA, split_vertex, relabel_counts, relabel_faces[:n_relabel]
+    if dec[rc.POSITION] != data.shape[0]:
         return LONG_DATA, split_vertex, relabel_counts, relabel_faces[:n_relabel]
-    if at_back != backs.shape[0] or at_mask != masks.shape[0]:
-        return LONG_DATA, split_vertex, relabel_counts, relabel_faces[:n_relabel]
+    if face != face_end:
+        return BAD_COUNT, split_vertex, relabel_counts, relabel_faces[:n_relabel]
     return 0, split_vertex, relabel_counts, relabel_faces[:n_relabel]

@@ -4,12 +4,12 @@
 // Wire formats (qem_core/stream.py, qem_core/codecs/msgpack_mesh.py):
 //   base mesh   one msgpack map "qem-mesh-msgpack" v1, positions "u16" on the grid whose
 //               box is `bbox` (the very integers the split stream's deltas refer to);
-//   split stream  frames of uint32 LE length L + L bytes of zlib (RFC 1950) data holding
-//               a msgpack map "qem-splits" v3; integer fields are little-endian byte
-//               planes (all low bytes, then the next...), positions zigzag residuals,
-//               connectivity relative to the split vertex's neighbourhood, which the
-//               decoder below keeps at the received level (docs/formats.md section 2);
-//               a mesh with appearance has wedges, in both (wedges.js).
+//   split stream  frames of uint32 LE length L + L bytes holding a msgpack map
+//               "qem-splits" v3 and the CRC-32 of its bytes; its `splits` bytes are
+//               range-coded (range_coder.js): connectivity relative to the split
+//               vertex's neighbourhood, which the decoder below keeps at the received
+//               level, positions as residuals (docs/formats.md section 2); a mesh with
+//               appearance has wedges, in both (wedges.js; the frame's `wedges` bytes).
 //
 // Split k (level L = nBase + k -> L + 1), as qem_core/_kernels/refine.py applies it:
 //
@@ -23,19 +23,11 @@
 // move costs O(splits crossed + relabels), never a refetch.
 
 import { decode } from "@msgpack/msgpack";
-import {
-  binArray,
-  fail,
-  FrameCutter,
-  fromPlanes,
-  INDEX_TYPES,
-  inflate,
-  unzigzag,
-  WireFormatError,
-} from "./wire.js";
+import { bitLength, INTEGER_SLOTS, newProbs, RangeDecoder, UNIFORM_SLOTS } from "./range_coder.js";
+import { binArray, fail, FrameCutter, INDEX_TYPES, WireFormatError } from "./wire.js";
 import { decodeBaseWedges, decodeWedgeFields, WedgeLevels } from "./wedges.js";
 
-export { FrameCutter, fromPlanes, inflate, WireFormatError };
+export { FrameCutter, WireFormatError };
 
 export const STREAM_VERSION = 3;
 export const MESH_VERSION = 1;
@@ -43,6 +35,22 @@ const EXPLICIT_FACE = 6; // face codes 0-2: (s, t, x) rotated; 3-5: (t, s, x); 6
 const ESCAPE = 255; // a third corner given as a back-distance, not as a neighbour index
 const PREDICT_LIMIT = 64; // as qem_core/_kernels/stream_coding.py
 const SPAN_RING_LIMIT = 64; // as stream_coding.py: products stay below 2^53
+const FRAME_SPLIT_LIMIT = 1 << 16; // as qem_core.stream: what one frame may allocate
+const FRAME_FACE_LIMIT = 1 << 22;
+const ITEMS_PER_BYTE = 512;
+// The contexts of the coded fields, slots of one probability array
+// (qem_core/_kernels/stream_coding.py, same layout).
+const ROWS = 21;
+const S_SLOTS = 0;
+const COUNT_SLOTS = S_SLOTS + UNIFORM_SLOTS;
+const CODE_SLOTS = COUNT_SLOTS + INTEGER_SLOTS;
+const ESCAPE_SLOT = CODE_SLOTS + 8 * 8;
+const THIRD_SLOTS = ESCAPE_SLOT + 1;
+const BACK_SLOTS = THIRD_SLOTS + 17 * 8;
+const MASK_SLOTS = BACK_SLOTS + INTEGER_SLOTS;
+const SPAN_SLOTS = MASK_SLOTS + 2;
+const MID_SLOTS = SPAN_SLOTS + ROWS * INTEGER_SLOTS;
+const CONTEXT_SLOTS = MID_SLOTS + ROWS * INTEGER_SLOTS;
 
 /** The grid p = origin + q * step of `bits` bits over the box low..high (quantise.Grid). */
 export function gridOverBox(bbox, bits) {
@@ -101,8 +109,35 @@ function binField(body, key, length) {
   return value;
 }
 
-/** One inflated frame's msgpack map, fields checked and planes decoded (no mesh state). */
-export function decodeFrame(bytes) {
+const CRC_TABLE = (() => {
+  const table = new Uint32Array(256);
+  for (let n = 0; n < 256; n++) {
+    let c = n;
+    for (let k = 0; k < 8; k++) c = c & 1 ? 0xedb88320 ^ (c >>> 1) : c >>> 1;
+    table[n] = c >>> 0;
+  }
+  return table;
+})();
+
+/** CRC-32 (IEEE 802.3, zlib.crc32) of bytes. */
+export function crc32(bytes) {
+  let c = 0xffffffff;
+  for (let i = 0; i < bytes.length; i++) c = CRC_TABLE[(c ^ bytes[i]) & 0xff] ^ (c >>> 8);
+  return (c ^ 0xffffffff) >>> 0;
+}
+
+/** One frame payload (msgpack map + CRC-32 of it), its counts checked (the splits decode
+ * against the mesh). */
+export function decodeFrame(payload) {
+  const n = payload.length - 4;
+  const stored =
+    n >= 0
+      ? (payload[n] | (payload[n + 1] << 8) | (payload[n + 2] << 16) | (payload[n + 3] << 24)) >>> 0
+      : -1;
+  if (n < 0 || crc32(payload.subarray(0, n)) !== stored) {
+    fail("split frame: the CRC-32 does not match (damaged frame)");
+  }
+  const bytes = payload.subarray(0, n);
   let body;
   try {
     body = decode(bytes);
@@ -116,7 +151,7 @@ export function decodeFrame(bytes) {
   if (body.version !== STREAM_VERSION) {
     fail(`split frame version ${body.version} is no longer read (this reads ${STREAM_VERSION})`);
   }
-  for (const key of ["n_from", "n_to", "faces_from", "bits", "n_new_faces", "n_backs"]) {
+  for (const key of ["n_from", "n_to", "faces_from", "bits", "n_new_faces"]) {
     if (!Number.isInteger(body[key]) || body[key] < 0)
       fail(`split frame: '${key}' is ${body[key]}`);
   }
@@ -124,20 +159,22 @@ export function decodeFrame(bytes) {
   const nNew = body.n_new_faces;
   if (k < 0) fail("split frame: inconsistent counts");
   if (!Array.isArray(body.grid) || body.grid.length !== 6) fail("split frame: bad 'grid'");
+  const coded = binField(body, "splits", null);
+  // As qem_core.stream._check_frame_size: bounded before anything is allocated.
+  if (k > FRAME_SPLIT_LIMIT || nNew > FRAME_FACE_LIMIT) {
+    fail(`split frame: ${k} splits / ${nNew} faces, over the limit`);
+  }
+  if (Math.max(k, nNew) > ITEMS_PER_BYTE * (coded.length + 1)) {
+    fail(`split frame: ${coded.length} coded bytes cannot hold ${k} splits and ${nNew} faces`);
+  }
   return {
     nFrom: body.n_from,
     nTo: body.n_to,
     facesFrom: body.faces_from,
     bits: body.bits,
     grid: body.grid,
-    splitBack: fromPlanes(body.split_back, 4, k, "split_back"),
-    newFaceCounts: fromPlanes(body.new_face_counts, 2, k, "new_face_counts"),
-    faceCodes: binField(body, "face_codes", nNew),
-    thirdCorners: binField(body, "third_corners", null),
-    cornersBack: fromPlanes(body.corners_back, 4, body.n_backs, "corners_back"),
-    relabelMasks: binField(body, "relabel_masks", null),
-    mid: unzigzag(fromPlanes(body.position_mid, 4, 3 * k, "position_mid")),
-    span: unzigzag(fromPlanes(body.position_span, 4, 3 * k, "position_span")),
+    nNewFaces: nNew,
+    coded,
     wedges: decodeWedgeFields(body, k),
   };
 }
@@ -233,6 +270,17 @@ class SplitState {
       const j = c % 3;
       y = forward ? faces[f + ((j + 1) % 3)] : faces[f + ((j + 2) % 3)];
       if (forward && y === xr) return;
+    }
+  }
+
+  /** spread[d] = mean |Q[w] - Q[s]| along axis d over s's nn neighbours nb[0..nn)
+   * (stream_coding._ring_spread): the scale of the split's edges. */
+  ringSpread(s, nn, spread) {
+    const { nb, q } = this;
+    for (let d = 0; d < 3; d++) {
+      let total = 0;
+      for (let j = 0; j < nn; j++) total += Math.abs(q[3 * nb[j] + d] - q[3 * s + d]);
+      spread[d] = nn ? Math.floor(total / nn) : 0;
     }
   }
 
@@ -355,12 +403,7 @@ export class ProgressiveLevels {
     }
     if (nTo > this.nFull) fail(`frame goes to ${nTo} vertices, past the full ${this.nFull}`);
     this.checkGrid(frame);
-    const k = nTo - nFrom;
-    let faces = facesFrom;
-    for (let i = 0; i < k; i++) faces += frame.newFaceCounts[i];
-    if (faces - facesFrom !== frame.faceCodes.length) {
-      fail("split frame: face counts do not match the face codes");
-    }
+    const faces = facesFrom + frame.nNewFaces;
     if (faces > this.fFull) fail(`frame brings ${faces} faces, past the full ${this.fFull}`);
     try {
       this.wedges?.beginFrame(frame.wedges);
@@ -373,56 +416,60 @@ export class ProgressiveLevels {
     this.received = nTo;
   }
 
-  /** The frame's splits against the received level (stream_coding.decode_connectivity
-   * and uncode_positions), stored as split vertex, deltas and relabelled faces. */
+  /** The frame's splits against the received level (stream_coding.decode_connectivity),
+   * decoded from its range-coded bytes, stored as split vertex, deltas and relabelled
+   * faces. */
   decodeSplits(frame) {
-    const { nFrom, faceCodes, thirdCorners, cornersBack, relabelMasks, mid, span } = frame;
+    const { nFrom } = frame;
     const k = frame.nTo - nFrom;
     const first = nFrom - this.nBase;
     const state = this.state;
     const sf = state.faces;
     const q = state.q;
     const out = this.indices;
+    const coder = new RangeDecoder(frame.coded);
+    const probs = newProbs(CONTEXT_SLOTS);
+    const short = () => fail("split frame: the coded splits end early (truncated or corrupt data)");
     let relabel = this.relabelOffsets[first];
-    let atCode = 0;
-    let atThird = 0;
-    let atBack = 0;
-    let atMask = 0;
     let face = frame.facesFrom;
+    const faceEnd = face + frame.nNewFaces;
     const prediction = [0, 0, 0];
+    const spread = [0, 0, 0];
+    const edge = [0, 0, 0];
     for (let i = 0; i < k; i++) {
+      if (coder.broken) short();
       const t = nFrom + i;
-      const back = frame.splitBack[i];
-      if (back < 1 || back > t) fail(`split ${t}: names a vertex that does not exist yet`);
-      const s = t - back;
+      if (t < 1) fail(`split ${t}: names a vertex that does not exist yet`);
+      const s = coder.uniform(probs, S_SLOTS, t);
       const [nc, nn] = state.gather(s);
-      const count = frame.newFaceCounts[i];
+      state.ringSpread(s, nn, spread);
+      const count = coder.integer(probs, COUNT_SLOTS, false);
+      if (count > faceEnd - face) fail("split frame: the splits' face counts do not add up to n_new_faces");
       let xl = -1;
       let xr = -1;
       const firstNew = face;
+      let previous = 7;
       for (let j = 0; j < count; j++, face++) {
-        const code = faceCodes[atCode++];
+        const code = coder.tree(probs, CODE_SLOTS + 8 * previous, 3);
+        previous = code;
         const f = 3 * face;
         if (code === EXPLICIT_FACE) {
-          if (atBack + 3 > cornersBack.length) fail("split frame: a field ends before the splits do");
           for (let c = 0; c < 3; c++) {
-            const b = cornersBack[atBack++];
+            const b = coder.integer(probs, BACK_SLOTS, false);
             if (b > t) fail(`split ${t}: a new face uses a vertex that does not exist`);
             sf[f + c] = t - b;
           }
           continue;
         }
         if (code > EXPLICIT_FACE) fail(`split frame: bad face code ${code}`);
-        if (atThird >= thirdCorners.length) fail("split frame: a field ends before the splits do");
-        const index = thirdCorners[atThird++];
         let x;
-        if (index === ESCAPE) {
-          if (atBack >= cornersBack.length) fail("split frame: a field ends before the splits do");
-          const b = cornersBack[atBack++];
+        if (coder.bit(probs, ESCAPE_SLOT)) {
+          const b = coder.integer(probs, BACK_SLOTS, false);
           if (b > t) fail(`split ${t}: a new face uses a vertex that does not exist`);
           x = t - b;
-        } else if (index < nn) {
-          x = state.nb[index];
+        } else if (nn > 0) {
+          const nIndex = Math.min(nn, ESCAPE);
+          x = state.nb[coder.uniform(probs, THIRD_SLOTS + Math.min(nIndex, 16) * 8, nIndex)];
         } else {
           fail(`split ${t}: a third corner is not a neighbour of the split vertex`);
         }
@@ -436,14 +483,10 @@ export class ProgressiveLevels {
       }
       out.set(sf.subarray(3 * firstNew, 3 * face), 3 * firstNew); // as born
       state.predict(nc, xl, xr);
-      const nBytes = (nc + 7) >> 3;
-      if (atMask + nBytes > relabelMasks.length) fail("split frame: a field ends before the splits do");
       const mark = state.mark;
-      for (let j = 0; j < nc; j++) mark[j] ^= (relabelMasks[atMask + (j >> 3)] >> (j & 7)) & 1;
-      if (nc & 7 && relabelMasks[atMask + nBytes - 1] >> (nc & 7)) {
-        fail("split frame: a relabel mask sets a bit past the split vertex's corners");
+      if (nc && coder.bit(probs, MASK_SLOTS)) {
+        for (let j = 0; j < nc; j++) mark[j] ^= coder.bit(probs, MASK_SLOTS + 1);
       }
-      atMask += nBytes;
       this.reserveRelabels(relabel + nc);
       for (let j = 0; j < nc; j++) {
         if (!mark[j]) continue;
@@ -453,12 +496,17 @@ export class ProgressiveLevels {
       }
       for (let c = 3 * firstNew; c < 3 * face; c++) state.link(sf[c], c);
       this.wedges?.decodeSplit(i, s, t, state, nc, firstNew, face);
-      // Positions: a + b = 2 (old + mid) + (e & 1), e = b - a = span + prediction.
+      // Positions: e = b - a = span + prediction, a + b = 2 (old + mid) + (e & 1).
       state.spanPrediction(s, t, prediction);
       for (let axis = 0; axis < 3; axis++) {
+        const row = Math.min(bitLength(spread[axis]), ROWS - 1);
+        edge[axis] = coder.integer(probs, SPAN_SLOTS + row * INTEGER_SLOTS, true) + prediction[axis];
+      }
+      for (let axis = 0; axis < 3; axis++) {
+        const row = Math.min(bitLength(edge[axis]), ROWS - 1);
         const old = q[3 * s + axis];
-        const m = mid[axis * k + i] + old;
-        const e = span[axis * k + i] + prediction[axis];
+        const m = coder.integer(probs, MID_SLOTS + row * INTEGER_SLOTS, true) + old;
+        const e = edge[axis];
         const a = (2 * m + (e & 1) - e) / 2;
         q[3 * s + axis] = a;
         q[3 * t + axis] = a + e;
@@ -469,14 +517,11 @@ export class ProgressiveLevels {
       this.levelFaces[first + i + 1] = face;
       this.relabelOffsets[first + i + 1] = relabel;
     }
-    if (
-      atCode !== faceCodes.length ||
-      atThird !== thirdCorners.length ||
-      atBack !== cornersBack.length ||
-      atMask !== relabelMasks.length
-    ) {
-      fail("split frame: a field holds more than the splits use");
+    if (coder.broken) short();
+    if (coder.position !== frame.coded.length) {
+      fail("split frame: the coded splits hold bytes past the last split");
     }
+    if (face !== faceEnd) fail("split frame: the splits' face counts do not add up to n_new_faces");
   }
 
   checkGrid(frame) {
@@ -553,8 +598,9 @@ export class ProgressiveLevels {
 
 /**
  * Stream the splits of `url` into `levels`: fetch + ReadableStream, frames cut as bytes
- * arrive, inflated concurrently, applied in order. onFrame(bytesSoFar) runs after each
- * frame is stored; onBytes(bytesSoFar) after each network chunk.
+ * arrive and applied in order (the first that cannot be stops the stream).
+ * onFrame(bytesSoFar) runs after each frame is stored; onBytes(bytesSoFar) after each
+ * network chunk.
  */
 export async function streamSplits(url, levels, { onFrame, onBytes, signal } = {}) {
   const response = await fetch(url, { signal });
@@ -562,40 +608,18 @@ export async function streamSplits(url, levels, { onFrame, onBytes, signal } = {
   const reader = response.body.getReader();
   const cutter = new FrameCutter();
   let bytes = 0;
-  let failure = null; // the first frame that could not be applied stops the stream
-  let applied = Promise.resolve();
   try {
     for (;;) {
       const { done, value } = await reader.read();
-      if (failure) throw failure;
       if (done) break;
       bytes += value.length;
       onBytes?.(bytes);
       for (const payload of cutter.push(value)) {
-        const inflated = inflate(payload); // starts now; frames are applied in order below
-        inflated.catch(() => {}); // reported through `failure`
-        const seen = bytes;
-        applied = applied.then(async () => {
-          if (failure) return;
-          try {
-            let frame;
-            try {
-              frame = decodeFrame(await inflated);
-            } catch (error) {
-              if (error instanceof WireFormatError) throw error;
-              fail(`split frame does not inflate: ${error.message}`);
-            }
-            levels.addFrame(frame);
-            onFrame?.(seen);
-          } catch (error) {
-            failure = error;
-          }
-        });
+        levels.addFrame(decodeFrame(payload));
+        onFrame?.(bytes);
       }
     }
     cutter.finish();
-    await applied;
-    if (failure) throw failure;
   } catch (error) {
     reader.cancel().catch(() => {});
     throw error;

@@ -40,6 +40,7 @@ from ._kernels.stream_coding import (
     CONTEXT_SLOTS,
     LONG_DATA,
     NO_CORNER,
+    POSITION_SYMBOLS,
     SHORT_DATA,
     SPLIT_CONTEXT,
     code_splits,
@@ -94,65 +95,93 @@ class FrameSymbols(NamedTuple):
     split_back: np.ndarray  # (k,) t - s
     new_face_counts: np.ndarray  # (k,)
     face_codes: np.ndarray  # (new faces,) 0..6
-    third_corners: np.ndarray  # (faces of code 0-5,) index into nb, or 255
+    third_corners: np.ndarray  # (faces of code 0-5,) index into nb, 255 escaped, -1 walked
+    wing_steps: np.ndarray  # (faces of code 0-5,) the second wing's walk step, or -1
+    walk_lengths: np.ndarray  # (faces of code 0-5,) the length of that walk
     corners_back: np.ndarray  # t - corner of escaped and explicit corners
-    relabel_masks: np.ndarray  # ceil(nc / 8) bytes per split
-    position_mid: np.ndarray  # (k, 3)
-    position_span: np.ndarray  # (k, 3)
+    relabel_masks: np.ndarray  # per corner of s: bit 0 relabelled, bit 1 predicted
+    positions: np.ndarray  # (k, 7): position_span x3, placement, position_mid x3
+    position_slots: np.ndarray  # (k, 7, 2): their contexts
     split_context: np.ndarray  # (k, SPLIT_CONTEXT)
 
 
-def range_code_fields(symbols: FrameSymbols, fields: int = ALL_FIELDS) -> bytes:
-    """The frame's fields range-coded with fresh contexts; ``fields`` picks some of them
-    (``stream_coding.FIELD_*``) to measure them one by one."""
+def range_code_fields(
+    symbols: FrameSymbols, fields: int = ALL_FIELDS, probs: np.ndarray | None = None
+) -> bytes:
+    """The frame's fields range-coded; ``fields`` picks some of them
+    (``stream_coding.FIELD_*``) to measure them one by one. The contexts are ``probs``
+    (updated in place: what the stream's next frame starts from), fresh when None."""
+    if probs is None:
+        probs = new_contexts()
     capacity = 64 + 16 * symbols.split_back.shape[0] + 8 * symbols.face_codes.shape[0]
     while True:
         out = np.empty(capacity, np.uint8)
         enc = range_coder.new_encoder()
-        code_splits(enc, out, range_coder.new_probs(CONTEXT_SLOTS), fields, *symbols)
+        trial = probs.copy()
+        code_splits(enc, out, trial, fields, *symbols)
         written = range_coder.finish(enc, out)
         if written <= capacity:
+            probs[:] = trial
             return out[:written].tobytes()
         capacity = 2 * written
+
+
+def new_contexts() -> np.ndarray:
+    """The contexts a stream's first frame starts from."""
+    return range_coder.new_probs(CONTEXT_SLOTS)
 
 
 def _frame_symbols(
     splits: VertexSplits, state: _State, quantised: np.ndarray, grid: Grid
 ) -> FrameSymbols:
     k = splits.split_vertex.shape[0]
-    mid = np.zeros((k, 3), np.int64)
-    span = np.zeros((k, 3), np.int64)
+    positions = np.zeros((k, POSITION_SYMBOLS), np.int64)
+    position_slots = np.zeros((k, POSITION_SYMBOLS, 2), np.int64)
     split_context = np.zeros((k, SPLIT_CONTEXT), np.int64)
-    codes, thirds, backs, masks, status = encode_connectivity(
+    codes, thirds, steps, walks, backs, masks, status = encode_connectivity(
         state.faces, splits.faces_from, state.head, state.nxt, splits.n_from,
         splits.split_vertex, splits.new_faces, splits.new_face_counts,
         splits.relabel_offsets, splits.relabel_faces, quantised,
-        grid.quantise(splits.split_positions), mid, span, split_context,
+        grid.quantise(splits.split_positions), positions, position_slots, split_context,
     )  # fmt: skip
     if status:
         raise ValueError("inconsistent splits: a relabelled face has no corner s")
     split_back = splits.n_from + np.arange(k) - splits.split_vertex
     return FrameSymbols(
-        splits.n_from, split_back, splits.new_face_counts, codes, thirds, backs, masks,
-        mid, span, split_context,
+        splits.n_from, split_back, splits.new_face_counts, codes, thirds, steps, walks, backs,
+        masks, positions, position_slots, split_context,
     )  # fmt: skip
 
 
-def _encode_frame(splits: VertexSplits, state: _State, quantised: np.ndarray, grid: Grid) -> bytes:
-    body = {
+def _encode_frame(
+    splits: VertexSplits,
+    state: _State,
+    quantised: np.ndarray,
+    grid: Grid,
+    probs: np.ndarray | None,
+) -> tuple[bytes, np.ndarray]:
+    """One frame and the contexts it leaves; ``probs`` are those the stream's previous
+    frame left (None for the first frame, which starts afresh and carries the grid)."""
+    first = probs is None
+    if first:
+        probs = new_contexts()
+    body: dict = {
         "format": "qem-splits",
         "version": STREAM_VERSION,
         "n_from": splits.n_from,
         "n_to": splits.n_to,
         "faces_from": splits.faces_from,
-        "bits": grid.bits,
-        "grid": [*map(float, grid.origin), *map(float, grid.step)],
-        "n_new_faces": int(splits.new_faces.shape[0]),
-        "splits": range_code_fields(_frame_symbols(splits, state, quantised, grid)),
     }
+    if first:
+        body["bits"] = grid.bits
+        body["grid"] = [*map(float, grid.origin), *map(float, grid.step)]
+    else:
+        body["continues"] = True
+    body["n_new_faces"] = int(splits.new_faces.shape[0])
+    body["splits"] = range_code_fields(_frame_symbols(splits, state, quantised, grid), probs=probs)
     payload = msgpack.packb(body)
     payload += struct.pack("<I", zlib.crc32(payload))
-    return struct.pack("<I", len(payload)) + payload
+    return struct.pack("<I", len(payload)) + payload, probs
 
 
 class _State(NamedTuple):
@@ -177,7 +206,7 @@ def encode_split_frames(
     n_to: int,
     bits: int = 16,
     splits_per_frame: int = SPLITS_PER_FRAME,
-    _frame=_encode_frame,
+    _frame=None,
 ) -> Iterator[bytes]:
     """Frames of the splits refining lod(n_from) to lod(n_to), generated lazily."""
     grid = grid_for(pm, bits)
@@ -194,10 +223,16 @@ def encode_split_frames(
     state = _state(faces, n_to, pm.n_faces(n_to))
     frame_splits = min(FIRST_FRAME_SPLITS, splits_per_frame)
     start = n_from
+    probs = None  # the contexts, carried from frame to frame
     while start < n_to:
         stop = min(start + frame_splits, n_to)
         frame_splits = min(2 * frame_splits, splits_per_frame)
-        yield _frame(pm.splits(start, stop), state, quantised, grid)
+        splits = pm.splits(start, stop)
+        if _frame is None:
+            frame, probs = _encode_frame(splits, state, quantised, grid, probs)
+            yield frame
+        else:
+            yield _frame(splits, state, quantised, grid)
         start = stop
 
 
@@ -237,6 +272,7 @@ class SplitStreamDecoder:
         self.quantised = np.asarray(quantised_vertices, np.int64).copy()
         self.faces = np.asarray(faces, np.int32).copy()
         self.grid: Grid | None = None
+        self._contexts: np.ndarray | None = None  # as the last frame decoded left them
 
     @property
     def n_vertices(self) -> int:
@@ -267,12 +303,26 @@ class SplitStreamDecoder:
             for value in (n_from, n_to, faces_from, n_new):
                 if not isinstance(value, int) or value < 0:
                     raise CorruptFileError(f"split frame: a count is {value!r}")
-            grid_values = np.asarray(body["grid"], np.float64)
-            # Checked here: a short or non-finite grid would only fail later, when the
-            # caller reads `vertices`, with an unrelated error.
-            if grid_values.shape != (6,) or not np.isfinite(grid_values).all():
-                raise CorruptFileError("split frame: 'grid' must be 6 finite numbers")
-            grid = Grid(grid_values[:3], grid_values[3:], int(body["bits"]))
+            continues = body.get("continues", False)
+            if continues is True:
+                # The contexts (and the grid) are those the stream's previous frame left.
+                if self._contexts is None or self.grid is None:
+                    raise CorruptFileError(
+                        "split frame continues a stream whose previous frame this decoder "
+                        "did not decode"
+                    )
+                grid = self.grid
+                contexts = self._contexts.copy()
+            elif continues is False:
+                grid_values = np.asarray(body["grid"], np.float64)
+                # Checked here: a short or non-finite grid would only fail later, when the
+                # caller reads `vertices`, with an unrelated error.
+                if grid_values.shape != (6,) or not np.isfinite(grid_values).all():
+                    raise CorruptFileError("split frame: 'grid' must be 6 finite numbers")
+                grid = Grid(grid_values[:3], grid_values[3:], int(body["bits"]))
+                contexts = new_contexts()
+            else:
+                raise CorruptFileError(f"split frame: 'continues' is {continues!r}")
             k = n_to - n_from
             if n_from != self.n_vertices or faces_from != self.faces.shape[0] or k < 0:
                 raise CorruptFileError(
@@ -291,13 +341,15 @@ class SplitStreamDecoder:
         quantised = np.zeros((n_to, 3), np.int64)
         quantised[:n_from] = self.quantised
         status, _, _, _ = decode_connectivity(
-            state.faces, faces_from, state.head, state.nxt, n_from, k, n_new, coded, quantised
-        )
+            state.faces, faces_from, state.head, state.nxt, n_from, k, n_new, coded, quantised,
+            contexts,
+        )  # fmt: skip
         if status:
             raise CorruptFileError(f"split frame: {_STATUS[status]}")
         self.faces = state.faces
         self.quantised = quantised
         self.grid = grid
+        self._contexts = contexts
 
 
 def _check_frame_size(n_splits: int, n_new_faces: int, n_bytes: int) -> None:

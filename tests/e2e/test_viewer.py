@@ -35,7 +35,7 @@ import qem_core
 from qem_core import codecs
 from qem_core.progressive import ProgressiveMesh
 from qem_core.stream import encode_split_frames, grid_for, split_frame_symbols
-from tests.tiny_meshes import icosphere
+from tests.tiny_meshes import bumpy_grid, degenerate_ring_pm, grid, icosphere, perforated_icosphere
 
 from .conftest import REPO, shared_mesh
 
@@ -240,6 +240,36 @@ def test_refine_js_moves_down_and_up_through_every_level(tmp_path):
         assert levels[n] == {"level": n, "faces": pm.n_faces(n), "digest": pm_digest(pm, n)}
 
 
+def test_refine_js_takes_the_rarer_coding_paths_exactly(tmp_path):
+    """A ring without a normal, an escaped third corner, t left at s's old position, a
+    relabel off the predicted fan (tests.tiny_meshes.degenerate_ring_pm): every level."""
+    pm = degenerate_ring_pm()
+    visit = [pm.n_full, pm.n_base, pm.n_base + 1, pm.n_full]
+    levels = run_refine_js(tmp_path, pm, visit)
+    for n in visit:
+        assert levels[n] == {"level": n, "faces": pm.n_faces(n), "digest": pm_digest(pm, n)}
+
+
+@pytest.mark.parametrize(
+    "mesh",
+    [grid(5), bumpy_grid(6, seed=1), perforated_icosphere(2, holes=3, seed=7)],
+    ids=["flat_grid", "bumpy_grid", "perforated_icosphere"],
+)
+def test_refine_js_decodes_built_meshes_exactly(tmp_path, mesh):
+    """Ends that stayed (the flat grid), second wings off the walk and relabels off the
+    predicted fan (the bumpy grid, the open icosphere), in frames of two splits and in
+    the stream's own frames: every level equals lod(n)."""
+    pm = qem_core.build(*mesh)
+    visit = list(range(pm.n_full, pm.n_base - 1, -1))
+    for splits_per_frame in (2, None):
+        stream = None
+        if splits_per_frame is None:
+            stream = b"".join(encode_split_frames(pm, pm.n_base, pm.n_full))
+        levels = run_refine_js(tmp_path, pm, visit, stream=stream)
+        for n in visit:
+            assert levels[n] == {"level": n, "faces": pm.n_faces(n), "digest": pm_digest(pm, n)}
+
+
 def frame_of(payload: bytes) -> bytes:
     return struct.pack("<I", len(payload)) + payload
 
@@ -247,6 +277,13 @@ def frame_of(payload: bytes) -> bytes:
 def sealed(body: bytes) -> bytes:
     """A frame of these msgpack bytes with their right CRC-32 (qem_core.stream)."""
     return frame_of(body + struct.pack("<I", zlib.crc32(body)))
+
+
+def _continuing(frame: bytes) -> bytes:
+    """The frame claiming to continue a stream (no grid, the previous frame's contexts)."""
+    body = msgpack.unpackb(frame[4:-4])
+    body = {k: v for k, v in body.items() if k not in ("bits", "grid")}
+    return sealed(msgpack.packb({**body, "continues": True}))
 
 
 def _truncated_splits(frame: bytes) -> bytes:
@@ -276,6 +313,10 @@ def _truncated_splits(frame: bytes) -> bytes:
             lambda frames: frames[0] + _truncated_splits(frames[1]),
             "WireFormatError: split frame: the coded splits end early",
         ),
+        (
+            lambda frames: _continuing(frames[0]) + b"".join(frames[1:]),
+            "WireFormatError: split frame continues a stream whose previous frame",
+        ),
     ],
     ids=[
         "cut-inside-a-frame",
@@ -284,6 +325,7 @@ def _truncated_splits(frame: bytes) -> bytes:
         "not-msgpack",
         "not-a-splits-map",
         "truncated",
+        "continues-nothing",
     ],
 )
 def test_refine_js_refuses_damaged_streams(tmp_path, damage, message):

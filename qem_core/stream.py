@@ -46,6 +46,7 @@ from ._kernels.stream_coding import (
     CONTEXT_SLOTS,
     LONG_DATA,
     NO_CORNER,
+    POSITION_SYMBOLS,
     SHORT_DATA,
     SPLIT_CONTEXT,
     code_splits,
@@ -119,46 +120,77 @@ class FrameSymbols(NamedTuple):
     split_back: np.ndarray  # (k,) t - s
     new_face_counts: np.ndarray  # (k,)
     face_codes: np.ndarray  # (new faces,) 0..6
-    third_corners: np.ndarray  # (faces of code 0-5,) index into nb, or 255
+    third_corners: np.ndarray  # (faces of code 0-5,) index into nb, 255 escaped, -1 walked
+    wing_steps: np.ndarray  # (faces of code 0-5,) the second wing's walk step, or -1
+    walk_lengths: np.ndarray  # (faces of code 0-5,) the length of that walk
     corners_back: np.ndarray  # t - corner of escaped and explicit corners
-    relabel_masks: np.ndarray  # ceil(nc / 8) bytes per split
-    position_mid: np.ndarray  # (k, 3)
-    position_span: np.ndarray  # (k, 3)
+    relabel_masks: np.ndarray  # per corner of s: bit 0 relabelled, bit 1 predicted
+    positions: np.ndarray  # (k, 7): position_span x3, placement, position_mid x3
+    position_slots: np.ndarray  # (k, 7, 2): their contexts
     split_context: np.ndarray  # (k, SPLIT_CONTEXT)
     wedges: WedgeArrays | None = None  # the wedge side (None without attributes)
 
 
-def range_code_fields(symbols: FrameSymbols, fields: int = ALL_FIELDS) -> bytes:
-    """The frame's fields range-coded with fresh contexts; ``fields`` picks some of them
-    (``stream_coding.FIELD_*``) to measure them one by one."""
+def range_code_fields(
+    symbols: FrameSymbols, fields: int = ALL_FIELDS, probs: np.ndarray | None = None
+) -> bytes:
+    """The frame's fields range-coded; ``fields`` picks some of them
+    (``stream_coding.FIELD_*``) to measure them one by one. The contexts are ``probs``
+    (updated in place: what the stream's next frame starts from), fresh when None."""
+    if probs is None:
+        probs = new_contexts()
     capacity = 64 + 16 * symbols.split_back.shape[0] + 8 * symbols.face_codes.shape[0]
     while True:
         out = np.empty(capacity, np.uint8)
         enc = range_coder.new_encoder()
-        code_splits(enc, out, range_coder.new_probs(CONTEXT_SLOTS), fields, *symbols[:-1])
+        trial = probs.copy()
+        code_splits(enc, out, trial, fields, *symbols[:-1])
         written = range_coder.finish(enc, out)
         if written <= capacity:
+            probs[:] = trial
             return out[:written].tobytes()
         capacity = 2 * written
 
 
-def range_code_wedges(fields: WedgeArrays) -> bytes:
-    """A frame's wedge fields range-coded with fresh contexts (an empty field costs
-    nothing, so passing one field and empty others measures that field)."""
+def range_code_wedges(fields: WedgeArrays, probs: np.ndarray | None = None) -> bytes:
+    """A frame's wedge fields range-coded (an empty field costs nothing, so passing one
+    field and empty others measures that field). The contexts are ``probs`` (updated in
+    place, for the stream's next frame), fresh when None."""
     counts = np.require(fields.counts, np.int64, ["C"])
     symbols = np.require(fields.symbols, np.uint8, ["C"])
     backs = np.require(fields.backs, np.int64, ["C"])
     rows = np.require(fields.rows, np.int64, ["C"])
+    if probs is None:
+        probs = new_wedge_contexts(rows.shape[1])
     capacity = 64 + 2 * counts.size + symbols.shape[0] + 8 * backs.shape[0] + 8 * rows.size
     while True:
         out = np.empty(capacity, np.uint8)
         enc = range_coder.new_encoder()
-        probs = range_coder.new_probs(wedge_context_slots(rows.shape[1]))
-        code_wedge_fields(enc, out, probs, counts, symbols, backs, rows)
+        trial = probs.copy()
+        code_wedge_fields(enc, out, trial, counts, symbols, backs, rows)
         written = range_coder.finish(enc, out)
         if written <= capacity:
+            probs[:] = trial
             return out[:written].tobytes()
         capacity = 2 * written
+
+
+def new_contexts() -> np.ndarray:
+    """The contexts a stream's first frame starts from."""
+    return range_coder.new_probs(CONTEXT_SLOTS)
+
+
+def new_wedge_contexts(width: int) -> np.ndarray:
+    """The wedge fields' contexts a stream's first frame starts from (``width`` value
+    columns)."""
+    return range_coder.new_probs(wedge_context_slots(width))
+
+
+class _Contexts(NamedTuple):
+    """The contexts a frame leaves to the stream's next one."""
+
+    splits: np.ndarray
+    wedges: np.ndarray | None  # None for a mesh without attributes
 
 
 def _frame_symbols(
@@ -169,21 +201,22 @@ def _frame_symbols(
     wedges: WedgeCoder | None = None,
 ) -> FrameSymbols:
     k = splits.split_vertex.shape[0]
-    mid = np.zeros((k, 3), np.int64)
-    span = np.zeros((k, 3), np.int64)
+    positions = np.zeros((k, POSITION_SYMBOLS), np.int64)
+    position_slots = np.zeros((k, POSITION_SYMBOLS, 2), np.int64)
     split_context = np.zeros((k, SPLIT_CONTEXT), np.int64)
-    codes, thirds, backs, masks, status = encode_connectivity(
+    codes, thirds, steps, walks, backs, masks, status = encode_connectivity(
         state.faces, splits.faces_from, state.head, state.nxt, splits.n_from,
         splits.split_vertex, splits.new_faces, splits.new_face_counts,
         splits.relabel_offsets, splits.relabel_faces, quantised,
-        grid.quantise(splits.split_positions), mid, span, split_context,
+        grid.quantise(splits.split_positions), positions, position_slots, split_context,
     )  # fmt: skip
     if status:
         raise ValueError("inconsistent splits: a relabelled face has no corner s")
     split_back = splits.n_from + np.arange(k) - splits.split_vertex
     return FrameSymbols(
-        splits.n_from, split_back, splits.new_face_counts, codes, thirds, backs, masks,
-        mid, span, split_context, None if wedges is None else wedges.encode(splits),
+        splits.n_from, split_back, splits.new_face_counts, codes, thirds, steps, walks, backs,
+        masks, positions, position_slots, split_context,
+        None if wedges is None else wedges.encode(splits),
     )  # fmt: skip
 
 
@@ -193,24 +226,36 @@ def _encode_frame(
     quantised: np.ndarray,
     grid: Grid,
     wedges: WedgeCoder | None,
-) -> bytes:
+    contexts: _Contexts | None,
+) -> tuple[bytes, _Contexts]:
+    """One frame and the contexts it leaves; ``contexts`` are those the stream's previous
+    frame left (None for the first frame, which starts afresh and carries the grid)."""
+    first = contexts is None
+    if first:
+        width = None if wedges is None else wedges.level.values.shape[1]
+        contexts = _Contexts(new_contexts(), None if width is None else new_wedge_contexts(width))
     symbols = _frame_symbols(splits, state, quantised, grid, wedges)
-    body = {
+    body: dict = {
         "format": "qem-splits",
         "version": STREAM_VERSION,
         "n_from": splits.n_from,
         "n_to": splits.n_to,
         "faces_from": splits.faces_from,
-        "bits": grid.bits,
-        "grid": [*map(float, grid.origin), *map(float, grid.step)],
-        "n_new_faces": int(splits.new_faces.shape[0]),
-        "splits": range_code_fields(symbols),
     }
+    if first:
+        body["bits"] = grid.bits
+        body["grid"] = [*map(float, grid.origin), *map(float, grid.step)]
+    else:
+        body["continues"] = True
+    body["n_new_faces"] = int(splits.new_faces.shape[0])
+    body["splits"] = range_code_fields(symbols, probs=contexts.splits)
     if wedges is not None:
-        body.update(_wedge_body(wedges.grid, splits.wedges.wedges_from, symbols.wedges))
+        body.update(
+            _wedge_body(wedges.grid, splits.wedges.wedges_from, symbols.wedges, contexts.wedges)
+        )
     payload = msgpack.packb(body)
     payload += struct.pack("<I", zlib.crc32(payload))
-    return struct.pack("<I", len(payload)) + payload
+    return struct.pack("<I", len(payload)) + payload, contexts
 
 
 class _State(NamedTuple):
@@ -229,22 +274,29 @@ def _state(faces: np.ndarray, n_vertices: int, face_capacity: int) -> _State | N
     return state if link_corners(held, faces.shape[0], state.head, state.nxt) else None
 
 
-def _wedge_body(grid: AttributeGrid, wedges_from: int, fields: WedgeArrays) -> dict:
-    """A frame's wedge keys (absent from the frames of a mesh without attributes)."""
+def _wedge_body(
+    grid: AttributeGrid, wedges_from: int, fields: WedgeArrays, probs: np.ndarray
+) -> dict:
+    """A frame's wedge keys (absent from the frames of a mesh without attributes), coded
+    with the contexts ``probs`` (updated)."""
     return {
         "wedge_grid": grid.to_dict(),
         "wedges_from": int(wedges_from),
         "n_wedge_symbols": int(fields.symbols.shape[0]),
         "n_wedge_backs": int(fields.backs.shape[0]),
         "n_wedge_rows": int(fields.rows.shape[0]),
-        "wedges": range_code_wedges(fields),
+        "wedges": range_code_wedges(fields, probs),
     }
 
 
-def _wedge_fields(body: dict, k: int) -> tuple[AttributeGrid, int, WedgeArrays]:
-    """The grid, wedges_from and decoded arrays of a frame's wedge keys (KeyError,
-    TypeError... on a missing or mistyped key, CorruptFileError on counts the bytes
-    cannot hold or bytes that do not decode)."""
+def _wedge_fields(
+    body: dict, k: int, previous: np.ndarray | None
+) -> tuple[AttributeGrid, int, WedgeArrays, np.ndarray]:
+    """The grid, wedges_from and decoded arrays of a frame's wedge keys, and the contexts
+    they leave (KeyError, TypeError... on a missing or mistyped key, CorruptFileError on
+    counts the bytes cannot hold or bytes that do not decode). ``previous``: the wedge
+    contexts the stream's previous frame left, for a frame that continues it (else
+    None: fresh contexts)."""
     try:
         grid = AttributeGrid.from_dict(body["wedge_grid"])
     except (ValueError, AttributeError) as error:
@@ -263,8 +315,14 @@ def _wedge_fields(body: dict, k: int) -> tuple[AttributeGrid, int, WedgeArrays]:
             f"split frame: the coded wedges ({coded.shape[0]} bytes) cannot hold {n_symbols} "
             f"symbols, {n_backs} backs and {n_rows} value rows"
         )
+    if previous is None:
+        probs = new_wedge_contexts(width)
+    elif previous.shape[0] == wedge_context_slots(width):
+        probs = previous.copy()
+    else:
+        raise CorruptFileError("split frame: its wedge grid has other attributes than the last")
     status, counts, symbols, backs, rows = decode_wedge_fields(
-        coded, k, n_symbols, n_backs, n_rows, width
+        coded, k, n_symbols, n_backs, n_rows, width, probs
     )
     if status:
         raise CorruptFileError(f"split frame: {_WEDGE_FIELD_STATUS[status]}")
@@ -272,7 +330,7 @@ def _wedge_fields(body: dict, k: int) -> tuple[AttributeGrid, int, WedgeArrays]:
     # allocates wedges for them.
     if int(counts[0].sum() + counts[1].sum()) > n_rows:
         raise CorruptFileError("split frame: more new wedges and updates than value rows")
-    return grid, wedges_from, WedgeArrays(counts, symbols, backs, rows)
+    return grid, wedges_from, WedgeArrays(counts, symbols, backs, rows), probs
 
 
 def encode_split_frames(
@@ -281,7 +339,7 @@ def encode_split_frames(
     n_to: int,
     bits: int = 16,
     splits_per_frame: int = SPLITS_PER_FRAME,
-    _frame=_encode_frame,
+    _frame=None,
 ) -> Iterator[bytes]:
     """Frames of the splits refining lod(n_from) to lod(n_to), generated lazily."""
     grid = grid_for(pm, bits)
@@ -305,10 +363,16 @@ def encode_split_frames(
         )  # fmt: skip
     frame_splits = min(FIRST_FRAME_SPLITS, splits_per_frame)
     start = n_from
+    contexts = None  # carried from frame to frame
     while start < n_to:
         stop = min(start + frame_splits, n_to)
         frame_splits = min(2 * frame_splits, splits_per_frame)
-        yield _frame(pm.splits(start, stop), state, quantised, grid, wedges)
+        splits = pm.splits(start, stop)
+        if _frame is None:
+            frame, contexts = _encode_frame(splits, state, quantised, grid, wedges, contexts)
+            yield frame
+        else:
+            yield _frame(splits, state, quantised, grid, wedges)
         start = stop
 
 
@@ -358,6 +422,8 @@ class SplitStreamDecoder:
         self.quantised = np.asarray(quantised_vertices, np.int64).copy()
         self.faces = np.asarray(faces, np.int32).copy()
         self.grid: Grid | None = None
+        self._contexts: np.ndarray | None = None  # as the last frame decoded left them
+        self._wedge_contexts: np.ndarray | None = None  # the same, of the wedge fields
         self.wedge_grid: AttributeGrid | None = None
         self.face_wedges: np.ndarray | None = None
         self.quantised_values: np.ndarray | None = None
@@ -419,12 +485,26 @@ class SplitStreamDecoder:
             for value in (n_from, n_to, faces_from, n_new):
                 if not isinstance(value, int) or value < 0:
                     raise CorruptFileError(f"split frame: a count is {value!r}")
-            grid_values = np.asarray(body["grid"], np.float64)
-            # Checked here: a short or non-finite grid would only fail later, when the
-            # caller reads `vertices`, with an unrelated error.
-            if grid_values.shape != (6,) or not np.isfinite(grid_values).all():
-                raise CorruptFileError("split frame: 'grid' must be 6 finite numbers")
-            grid = Grid(grid_values[:3], grid_values[3:], int(body["bits"]))
+            continues = body.get("continues", False)
+            if continues is True:
+                # The contexts (and the grid) are those the stream's previous frame left.
+                if self._contexts is None or self.grid is None:
+                    raise CorruptFileError(
+                        "split frame continues a stream whose previous frame this decoder "
+                        "did not decode"
+                    )
+                grid = self.grid
+                contexts = self._contexts.copy()
+            elif continues is False:
+                grid_values = np.asarray(body["grid"], np.float64)
+                # Checked here: a short or non-finite grid would only fail later, when the
+                # caller reads `vertices`, with an unrelated error.
+                if grid_values.shape != (6,) or not np.isfinite(grid_values).all():
+                    raise CorruptFileError("split frame: 'grid' must be 6 finite numbers")
+                grid = Grid(grid_values[:3], grid_values[3:], int(body["bits"]))
+                contexts = new_contexts()
+            else:
+                raise CorruptFileError(f"split frame: 'continues' is {continues!r}")
             k = n_to - n_from
             if n_from != self.n_vertices or faces_from != self.faces.shape[0] or k < 0:
                 raise CorruptFileError(
@@ -439,14 +519,16 @@ class SplitStreamDecoder:
                     raise CorruptFileError(
                         "split frame carries no wedges, but the mesh being refined has some"
                     )
-                wedge_fields = _wedge_fields(body, k)
+                wedge_fields = _wedge_fields(
+                    body, k, self._wedge_contexts if continues is True else None
+                )
         except CorruptFileError:
             raise
         except Exception as exc:  # msgpack, KeyError, TypeError...
             raise CorruptFileError(f"unreadable split frame: {exc}") from None
         wedges = None
         if wedge_fields is not None:
-            wedges = self._wedge_coder(*wedge_fields, n_to, faces_from + n_new)
+            wedges = self._wedge_coder(*wedge_fields[:3], n_to, faces_from + n_new)
         state = _state(self.faces, n_to, faces_from + n_new)
         if state is None:
             raise CorruptFileError("the mesh being refined has a face naming no vertex")
@@ -456,7 +538,7 @@ class SplitStreamDecoder:
         counts = np.zeros(k, np.int64)
         status, split_vertex, relabel_counts, relabel_faces = decode_connectivity(
             state.faces, faces_from, state.head, state.nxt, n_from, k, n_new, coded, quantised,
-            born, counts,
+            contexts, born, counts,
         )  # fmt: skip
         if status:
             raise CorruptFileError(f"split frame: {_STATUS[status]}")
@@ -474,6 +556,9 @@ class SplitStreamDecoder:
         self.faces = state.faces
         self.quantised = quantised
         self.grid = grid
+        self._contexts = contexts
+        if wedge_fields is not None:
+            self._wedge_contexts = wedge_fields[3]
 
     def _wedge_coder(
         self,

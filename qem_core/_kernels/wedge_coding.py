@@ -31,8 +31,9 @@ Split i (s, t = n_from + i, W wedges before it, ``n_new`` new wedges W.. after):
   new minus old), one per new wedge (its value minus the old value of the wedge of ws
   whose moved corners took it, else of ws[0], else 0).
 
-The fields are range-coded (``range_coder.py``, contexts of their own, fresh for each
-frame) by ``code_wedge_fields`` / ``decode_wedge_fields``, one field after the other:
+The fields are range-coded (``range_coder.py``, contexts of their own, carried from
+frame to frame as the splits' are) by ``code_wedge_fields`` / ``decode_wedge_fields``,
+one field after the other:
 
 - counts, row by row (new wedges of every split, then extra updates, then extra
   relabels): unsigned Exp-Golomb, a context block per row;
@@ -129,12 +130,13 @@ def code_wedge_fields(enc, out, probs, counts, symbols, backs, rows):
 
 
 @numba.njit(cache=True)
-def decode_wedge_fields(data, k, n_symbols, n_backs, n_rows, width):
+def decode_wedge_fields(data, k, n_symbols, n_backs, n_rows, width, probs):
     """Inverse of ``code_wedge_fields`` over all of ``data`` (the caller bounds the
-    counts first). Returns (status, counts, symbols, backs, rows): status SHORT_DATA if
-    the fields need more bytes than data has (or data is no coder output), LONG_DATA if
-    they leave bytes unread, else 0."""
-    probs = np.full(wedge_context_slots(width), rc.HALF, np.uint16)
+    counts first) with the contexts ``probs`` (``wedge_context_slots(width)`` of them,
+    fresh or as the stream's previous frame left them: they are updated). Returns
+    (status, counts, symbols, backs, rows): status SHORT_DATA if the fields need more
+    bytes than data has (or data is no coder output), LONG_DATA if they leave bytes
+    unread, else 0."""
     dec = rc.start_decoder(data, 0)
     counts = np.zeros((3, k), np.int64)
     symbols = np.zeros(n_symbols, np.uint8)

@@ -19,6 +19,7 @@ The browser test skips only where no Chromium can be found; ``.ci/run`` installs
 from __future__ import annotations
 
 import base64
+import functools
 import hashlib
 import json
 import os
@@ -26,9 +27,10 @@ import shutil
 import struct
 import subprocess
 import zlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import NamedTuple
 
 import httpx
 import msgpack
@@ -43,11 +45,12 @@ from qem_core.stream import (
     encode_split_frames,
     grid_for,
     iter_frames,
+    new_wedge_contexts,
     quantised_wedges,
     split_frame_symbols,
 )
-from tests.tiny_meshes import icosphere
-from tests.wedge_meshes import seamed_mesh, with_wedge_arrays
+from tests.tiny_meshes import bumpy_grid, degenerate_ring_pm, grid, icosphere, perforated_icosphere
+from tests.wedge_meshes import seamed_mesh, wedge_arrays, with_wedge_arrays
 
 from .conftest import REPO, shared_mesh
 
@@ -290,6 +293,36 @@ def test_refine_js_moves_down_and_up_through_every_level(tmp_path):
         assert levels[n] == {"level": n, "faces": pm.n_faces(n), "digest": pm_digest(pm, n)}
 
 
+def test_refine_js_takes_the_rarer_coding_paths_exactly(tmp_path):
+    """A ring without a normal, an escaped third corner, t left at s's old position, a
+    relabel off the predicted fan (tests.tiny_meshes.degenerate_ring_pm): every level."""
+    pm = degenerate_ring_pm()
+    visit = [pm.n_full, pm.n_base, pm.n_base + 1, pm.n_full]
+    levels = run_refine_js(tmp_path, pm, visit)
+    for n in visit:
+        assert levels[n] == {"level": n, "faces": pm.n_faces(n), "digest": pm_digest(pm, n)}
+
+
+@pytest.mark.parametrize(
+    "mesh",
+    [grid(5), bumpy_grid(6, seed=1), perforated_icosphere(2, holes=3, seed=7)],
+    ids=["flat_grid", "bumpy_grid", "perforated_icosphere"],
+)
+def test_refine_js_decodes_built_meshes_exactly(tmp_path, mesh):
+    """Ends that stayed (the flat grid), second wings off the walk and relabels off the
+    predicted fan (the bumpy grid, the open icosphere), in frames of two splits and in
+    the stream's own frames: every level equals lod(n)."""
+    pm = qem_core.build(*mesh)
+    visit = list(range(pm.n_full, pm.n_base - 1, -1))
+    for splits_per_frame in (2, None):
+        stream = None
+        if splits_per_frame is None:
+            stream = b"".join(encode_split_frames(pm, pm.n_base, pm.n_full))
+        levels = run_refine_js(tmp_path, pm, visit, stream=stream)
+        for n in visit:
+            assert levels[n] == {"level": n, "faces": pm.n_faces(n), "digest": pm_digest(pm, n)}
+
+
 @pytest.fixture(scope="module")
 def seamed_sphere_pm():
     """A sphere with seamed UVs, 8-bit colours and normals: every attribute."""
@@ -332,6 +365,13 @@ def sealed(body: bytes) -> bytes:
     return frame_of(body + struct.pack("<I", zlib.crc32(body)))
 
 
+def _continuing(frame: bytes) -> bytes:
+    """The frame claiming to continue a stream (no grid, the previous frame's contexts)."""
+    body = msgpack.unpackb(frame[4:-4])
+    body = {k: v for k, v in body.items() if k not in ("bits", "grid")}
+    return sealed(msgpack.packb({**body, "continues": True}))
+
+
 def _truncated_splits(frame: bytes) -> bytes:
     """The frame with the last byte of its range-coded splits cut off."""
     body = msgpack.unpackb(frame[4:-4])
@@ -342,8 +382,15 @@ def _rewritten(frame: bytes, change) -> bytes:
     return sealed(msgpack.packb(change(msgpack.unpackb(frame[4:-4]))))
 
 
+class _WedgeArraysChanged(NamedTuple):
+    """A change of a frame's decoded wedge arrays (coded again with the contexts the
+    stream's previous frame left)."""
+
+    change: Callable
+
+
 def _wedge_arrays_changed(change):
-    return lambda body: with_wedge_arrays(body, change)
+    return _WedgeArraysChanged(change)
 
 
 @pytest.mark.parametrize(
@@ -396,6 +443,10 @@ def test_refine_js_refuses_damaged_wedge_frames(tmp_path, spot_pm, change, messa
     frames = list(
         encode_split_frames(spot_pm, spot_pm.n_base, spot_pm.n_full, splits_per_frame=200)
     )
+    if isinstance(change, _WedgeArraysChanged):
+        probs = new_wedge_contexts(2)  # spot's UVs, as the first frame leaves them
+        wedge_arrays(msgpack.unpackb(frames[0][4:-4]), probs)
+        change = functools.partial(with_wedge_arrays, change=change.change, probs=probs)
     stream = frames[0] + _rewritten(frames[1], change) + b"".join(frames[2:])
     answer = run_refine_js(tmp_path, spot_pm, [], stream=stream)
     assert answer["error"].startswith(message), answer
@@ -423,6 +474,10 @@ def test_refine_js_refuses_damaged_wedge_frames(tmp_path, spot_pm, change, messa
             lambda frames: frames[0] + _truncated_splits(frames[1]),
             "WireFormatError: split frame: the coded splits end early",
         ),
+        (
+            lambda frames: _continuing(frames[0]) + b"".join(frames[1:]),
+            "WireFormatError: split frame continues a stream whose previous frame",
+        ),
     ],
     ids=[
         "cut-inside-a-frame",
@@ -431,6 +486,7 @@ def test_refine_js_refuses_damaged_wedge_frames(tmp_path, spot_pm, change, messa
         "not-msgpack",
         "not-a-splits-map",
         "truncated",
+        "continues-nothing",
     ],
 )
 def test_refine_js_refuses_damaged_streams(tmp_path, damage, message):

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import qem_core
+from qem_core._kernels import stream_coding
 from qem_core.codecs import decode_msgpack_mesh
 from qem_core.stream import (
     FIRST_FRAME_SPLITS,
@@ -21,7 +22,14 @@ from qem_core.stream import (
     quantised_wedges,
     split_frame_symbols,
 )
-from tests.tiny_meshes import FIN, bumpy_grid, grid, icosphere, perforated_icosphere
+from tests.tiny_meshes import (
+    FIN,
+    bumpy_grid,
+    degenerate_ring_pm,
+    grid,
+    icosphere,
+    perforated_icosphere,
+)
 
 
 @pytest.fixture(scope="module")
@@ -284,6 +292,9 @@ def _flip_middle(coded: bytes) -> bytes:
     _with(grid="origin"),
     _with(grid=[0.0, 0.0, 0.0, 1.0, float("nan"), 1.0]),
     _with(bits="sixteen"),
+    _with(continues=True),  # the stream's first frame: there are no contexts to go on with
+    _with(continues="yes"),
+    _with(continues=1),
     _with(n_new_faces=10**6),
     _with(n_new_faces=-1),
     lambda body: {**body, "n_new_faces": body["n_new_faces"] + 1},
@@ -370,3 +381,41 @@ def test_a_third_corner_that_is_no_neighbour_of_s_is_escaped():
     (symbols,) = split_frame_symbols(pm, pm.n_base, pm.n_full)
     assert symbols.third_corners.tolist() == [255] and symbols.corners_back.tolist() == [2]
     _check_decoded(pm, _decode(pm, pm.n_base, pm.n_full), pm.n_full)
+
+
+def test_the_rarer_coding_paths_round_trip():
+    """A ring without a normal (positions axis by axis), an escaped third corner, t left
+    at s's old position, a relabel that is not the predicted fan."""
+    pm = degenerate_ring_pm()
+    (symbols,) = split_frame_symbols(pm, pm.n_base, pm.n_full)
+    assert symbols.third_corners.tolist() == [255, 1] and symbols.corners_back.tolist() == [2]
+    assert symbols.positions[:, 3].tolist() == [0, 2]  # placement: general, t stayed
+    # split 0's ring has no normal: span and mid axis by axis, from their plain blocks
+    span_slots, mid_slots = symbols.position_slots[0, 2, 0], symbols.position_slots[0, 4, 0]
+    assert span_slots < stream_coding._NORMAL_SLOTS
+    assert stream_coding._MID_SLOTS <= mid_slots < stream_coding._MID1_SLOTS
+    assert ((symbols.relabel_masks & 1) != (symbols.relabel_masks >> 1)).any()
+    for n1 in range(pm.n_base, pm.n_full):
+        _check_decoded(pm, _decode(pm, n1, pm.n_full, splits_per_frame=1), pm.n_full)
+
+
+def test_frames_of_a_stream_go_on_with_the_previous_frames_contexts(big_pm):
+    """Only a stream's first frame carries the grid and starts the contexts afresh; a
+    later frame needs the decoder to have decoded the one before it. A refused frame
+    leaves the contexts as they were."""
+    pm = big_pm
+    n2 = pm.n_base + 3 * FIRST_FRAME_SPLITS
+    frames = list(iter_frames(_frames(pm, pm.n_base, n2)))
+    bodies = [msgpack.unpackb(frame[:-4]) for frame in frames]
+    assert "grid" in bodies[0] and "continues" not in bodies[0]
+    assert all(body["continues"] is True and "grid" not in body for body in bodies[1:])
+    with pytest.raises(qem_core.CorruptFileError, match="continues a stream"):
+        _fresh_decoder(pm, bodies[1]["n_from"]).feed(frames[1])
+    decoder = _fresh_decoder(pm)
+    decoder.feed(frames[0])
+    for lie in (_field_bytes("splits", _flip_middle), _with(n_new_faces=0)):
+        with pytest.raises(qem_core.CorruptFileError):
+            decoder.feed(_rewrite(frames[1], lie))
+    for frame in frames[1:]:
+        decoder.feed(frame)
+    _check_decoded(pm, decoder, n2)

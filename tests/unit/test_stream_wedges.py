@@ -18,6 +18,7 @@ from qem_core.stream import (
     encode_split_frames,
     grid_for,
     iter_frames,
+    new_wedge_contexts,
     quantised_wedges,
     wedge_grid_for,
 )
@@ -148,9 +149,10 @@ def test_symbols_are_mostly_zero_and_values_cost_what_the_bench_says(spot_pm):
     """The predictions hold for most corners of spot (a figure, not a proof), and the
     range-coded wedges cost less than the deflated byte planes did (5.93 B a split)."""
     coded = n_symbols = n_nonzero = 0
+    probs = new_wedge_contexts(2)  # spot's UVs; carried from frame to frame
     for frame in encode_split_frames(spot_pm, spot_pm.n_base, spot_pm.n_full):
         body = msgpack.unpackb(frame[4:-4])
-        symbols = wedge_arrays(body).symbols
+        symbols = wedge_arrays(body, probs).symbols
         n_symbols += symbols.size
         n_nonzero += int(np.count_nonzero(symbols))
         coded += len(body["wedges"])

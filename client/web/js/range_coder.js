@@ -20,6 +20,7 @@ export const UNIFORM_SLOTS = 64;
 /** Bit length of |value| (stream_coding._bit_length). */
 export function bitLength(value) {
   let v = Math.abs(value);
+  if (v < 2 ** 31) return 32 - Math.clz32(v);
   let n = 0;
   while (v >= 1) {
     n++;
@@ -124,16 +125,14 @@ export class RangeDecoder {
     return magnitude;
   }
 
-  /** A value in [0, n), n >= 1 (range_coder.decode_uniform). */
+  /** A value in [0, n), 1 <= n <= 2^32 (range_coder.decode_uniform). */
   uniform(probs, base, n) {
     const top = n - 1;
-    let nBits = 0;
-    while (Math.floor(top / 2 ** nBits) !== 0) nBits++;
+    const nBits = 32 - Math.clz32(top);
     let tight = true;
     let value = 0;
     for (let j = nBits - 1; j >= 0; j--) {
-      const topBit = Math.floor(top / 2 ** j) % 2;
-      if (tight && topBit === 0) {
+      if (tight && ((top >>> j) & 1) === 0) {
         value *= 2;
         continue;
       }

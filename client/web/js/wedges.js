@@ -75,8 +75,8 @@ const COLUMN_CLASSES = 4;
 const FRAME_WEDGE_LIMIT = 2 ** 24;
 const WEDGE_ITEMS_PER_BYTE = 2048;
 
-/** A frame's wedge fields (null when it has none), counts bounded by the coded bytes,
- * then range-decoded (qem_core/_kernels/wedge_coding.decode_wedge_fields). */
+/** A frame's wedge keys (null when it has none), counts bounded by the coded bytes; the
+ * fields are range-decoded by WedgeLevels.beginFrame (the contexts are the stream's). */
 export function decodeWedgeFields(body, k) {
   if (body.wedge_grid === undefined) return null;
   const grid = attributeGrid(body.wedge_grid, "split frame");
@@ -88,16 +88,27 @@ export function decodeWedgeFields(body, k) {
   const nSymbols = body.n_wedge_symbols;
   const nBacks = body.n_wedge_backs;
   const nRows = body.n_wedge_rows;
-  const width = grid.width;
-  const items = nSymbols + nBacks + width * nRows + 3 * k;
+  const items = nSymbols + nBacks + grid.width * nRows + 3 * k;
   if (items > FRAME_WEDGE_LIMIT || items > WEDGE_ITEMS_PER_BYTE * (coded.length + 1)) {
     fail(
       `split frame: the coded wedges (${coded.length} bytes) cannot hold ${nSymbols} ` +
         `symbols, ${nBacks} backs and ${nRows} value rows`,
     );
   }
+  return { grid, wedgesFrom: body.wedges_from, k, nSymbols, nBacks, nRows, coded };
+}
+
+/** The contexts of the wedge fields of `width` columns, fresh. */
+function newWedgeContexts(width) {
+  return newProbs(ROW_SLOTS + width * ROW_CLASSES * COLUMN_CLASSES * INTEGER_SLOTS);
+}
+
+/** The wedge fields range-decoded with the contexts `probs` (updated), checked
+ * (wedge_coding.decode_wedge_fields). */
+function rangeDecodeWedgeFields(keys, probs) {
+  const { coded, k, nSymbols, nBacks, nRows } = keys;
+  const width = keys.grid.width;
   const coder = new RangeDecoder(coded);
-  const probs = newProbs(ROW_SLOTS + width * ROW_CLASSES * COLUMN_CLASSES * INTEGER_SLOTS);
   const short = () => fail("split frame: the coded wedges end early (truncated or corrupt data)");
   const counts = new Float64Array(3 * k); // exact up to 2^53, as the coder's integers
   for (let row = 0; row < 3; row++) {
@@ -140,7 +151,7 @@ export function decodeWedgeFields(body, k) {
   let rowsNeeded = 0;
   for (let i = 0; i < 2 * k; i++) rowsNeeded += counts[i];
   if (rowsNeeded > nRows) fail("split frame: more new wedges and updates than value rows");
-  return { grid, wedgesFrom: body.wedges_from, counts, symbols, backs, rows, nRows };
+  return { counts, symbols, backs, rows, nRows };
 }
 
 /** The base mesh's `wedges` map (msgpack_mesh.py), checked. */
@@ -191,20 +202,25 @@ export class WedgeLevels {
     this.nValueChanges = 0;
     this.scratch = { old: new Int32Array(16), ws: new Int32Array(16), list: new Int32Array(32) };
     this.frame = null;
+    this.contexts = null; // the wedge fields' range coder contexts, as the last frame left them
     this.render = new RenderVertices(this, levels);
   }
 
   // -- decoding ----------------------------------------------------------------------------
 
-  /** Check a frame's wedge fields against the received level; start reading them. */
-  beginFrame(fields) {
-    if (!fields) fail("split frame carries no wedges, but the base mesh has some");
-    if (!sameGrid(fields.grid, this.grid)) {
+  /** Check a frame's wedge keys against the received level, decode its fields with the
+   * contexts the stream's previous frame left (fresh for a first frame); start reading
+   * them. */
+  beginFrame(keys, continues) {
+    if (!keys) fail("split frame carries no wedges, but the base mesh has some");
+    if (!sameGrid(keys.grid, this.grid)) {
       fail("the split stream's wedge grid is not the base mesh's: values would not refine");
     }
-    if (fields.wedgesFrom !== this.nWedges) {
-      fail(`frame refines ${fields.wedgesFrom} wedges, the viewer holds ${this.nWedges}`);
+    if (keys.wedgesFrom !== this.nWedges) {
+      fail(`frame refines ${keys.wedgesFrom} wedges, the viewer holds ${this.nWedges}`);
     }
+    if (!continues || !this.contexts) this.contexts = newWedgeContexts(this.width);
+    const fields = { ...keys, ...rangeDecodeWedgeFields(keys, this.contexts) };
     const k = fields.counts.length / 3;
     let added = 0;
     for (let i = 0; i < k; i++) added += fields.counts[i];

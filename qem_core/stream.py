@@ -7,22 +7,24 @@ A stream refining lod(n1) to lod(n2) is a sequence of frames; each frame is
     version 3) followed by the CRC-32 of its bytes
 
 Positions live on a grid of 2^bits - 1 steps per axis over the box of every position the
-progressive mesh uses (``grid`` = [origin xyz, step xyz]); the client keeps its mesh as
-grid integers. Encoder and decoder keep the connectivity of the level being refined
-(per-vertex corner lists), so each split codes its new faces' third corners as indices
-into the split vertex's neighbours, its relabelled faces as a mask over the split
-vertex's corners XOR the fan its new faces predict, and its positions as the edge's
-midpoint against s's old position and the edge's span against a prediction from the two
-rings (``_kernels/stream_coding.py``). The symbols go through an adaptive binary range
-coder (``_kernels/range_coder.py``) in the order the decoder needs them, with contexts
-the decoder knows from its state (the split vertex's neighbour count, the scale of its
-ring, the edge just decoded). A mesh with appearance attributes adds the wedge side
+progressive mesh uses (``grid`` = [origin xyz, step xyz], in a stream's first frame);
+the client keeps its mesh as grid integers. Encoder and decoder keep the connectivity of
+the level being refined (per-vertex corner lists), so each split codes its new faces'
+third corners as indices into the split vertex's neighbours or steps around it, its
+relabelled faces against the fan its new faces predict, and its positions as the edge's
+span against a prediction from the two rings and the ring's plane, then the edge's
+midpoint against s's old position in a frame of the edge and the ring's normal
+(``_kernels/stream_coding.py``). The symbols go through an adaptive binary range coder
+(``_kernels/range_coder.py``) in the order the decoder needs them, with contexts the
+decoder knows from its state (the split vertex's neighbour count, the scale and shape
+of its ring, the edge just decoded); the frames of one stream carry the contexts from
+one to the next. A mesh with appearance attributes adds the wedge side
 (``_kernels/wedge_coding.py``): each corner of the split's fan and new faces names its
 wedge by a symbol, mostly 0 (predicted), and the wedges' values, on a grid per attribute
 (``wedge_grid_for``), are residuals against the values they had; these fields are
-range-coded by the same coder, with contexts of their own, into the frame's ``wedges``
-bytes. A mesh without attributes has no wedge keys at all. docs/formats.md gives every
-field.
+range-coded by the same coder, with contexts of their own (carried from frame to frame
+too), into the frame's ``wedges`` bytes. A mesh without attributes has no wedge keys at
+all. docs/formats.md gives every field.
 """
 
 from __future__ import annotations

@@ -85,6 +85,24 @@ function sortPrefix(array, n) {
   }
 }
 
+/** sortPrefix for the Float64Array of fan keys (one element type per function keeps
+ * each of them monomorphic for the JIT). */
+function sortKeys(array, n) {
+  if (n > 32) {
+    array.subarray(0, n).sort();
+    return;
+  }
+  for (let i = 1; i < n; i++) {
+    const value = array[i];
+    let j = i - 1;
+    while (j >= 0 && array[j] > value) {
+      array[j + 1] = array[j];
+      j--;
+    }
+    array[j + 1] = value;
+  }
+}
+
 /** Context of a sign: 0 for 0, 1 for positive, 2 for negative (stream_coding._sign). */
 function signContext(value) {
   return value > 0 ? 1 : value < 0 ? 2 : 0;
@@ -94,7 +112,8 @@ function signContext(value) {
  * (stream_coding._shift_to). */
 function shiftTo(values, bits) {
   const big = Math.max(Math.abs(values[0]), Math.abs(values[1]), Math.abs(values[2]));
-  const divisor = 2 ** Math.max(0, bitLength(big) - bits);
+  if (big < 2 ** bits) return; // no shift
+  const divisor = 2 ** (bitLength(big) - bits);
   for (let d = 0; d < 3; d++) values[d] = Math.floor(values[d] / divisor);
 }
 
@@ -276,6 +295,10 @@ class SplitState {
     this.mark = new Uint8Array(16);
     this.ys = new Int32Array(16); // vertices met walking around s
     this.keys = new Float64Array(16); // the fan's corners by side (fanKeys)
+    this.seen = new Int32Array(nFull); // ringSum's marks
+    this.stamp = 0;
+    this.sumA = [0, 0, 0];
+    this.sumB = [0, 0, 0];
   }
 
   link(v, c) {
@@ -295,24 +318,37 @@ class SplitState {
     else this.next[prev] = this.next[c];
   }
 
-  /** Sorted corners of s into cs, sorted distinct other vertices into nb; [nc, nn]. */
+  /** Sorted corners of s into cs (this.nc of them), sorted distinct other vertices into
+   * nb (this.nn). */
   gather(s) {
+    const { head, next, faces } = this;
+    let cs = this.cs;
     let nc = 0;
-    for (let c = this.head[s]; c !== -1; c = this.next[c]) {
-      if (nc === this.cs.length) this.grow(2 * nc);
-      this.cs[nc++] = c;
+    for (let c = head[s]; c !== -1; c = next[c]) {
+      if (nc === cs.length) {
+        this.grow(2 * nc);
+        cs = this.cs;
+      }
+      cs[nc++] = c;
     }
-    const { cs, nb, faces } = this;
     sortPrefix(cs, nc);
+    const nb = this.nb;
     let m = 0;
     for (let q = 0; q < nc; q++) {
-      const f = cs[q] - (cs[q] % 3);
-      for (let j = 0; j < 3; j++) if (faces[f + j] !== s) nb[m++] = faces[f + j];
+      const c = cs[q];
+      const f = c - (c % 3);
+      const a = faces[f];
+      const b = faces[f + 1];
+      const d = faces[f + 2];
+      if (a !== s) nb[m++] = a;
+      if (b !== s) nb[m++] = b;
+      if (d !== s) nb[m++] = d;
     }
     sortPrefix(nb, m);
     let nn = 0;
     for (let q = 0; q < m; q++) if (nn === 0 || nb[q] !== nb[nn - 1]) nb[nn++] = nb[q];
-    return [nc, nn];
+    this.nc = nc;
+    this.nn = nn;
   }
 
   /** Room for the buffers of `degree` corners of s (cs keeps what it holds). */
@@ -338,7 +374,7 @@ class SplitState {
       const j = c % 3;
       keys[q] = (forward ? faces[f + ((j + 2) % 3)] : faces[f + ((j + 1) % 3)]) * nc + q;
     }
-    sortPrefix(keys, nc);
+    sortKeys(keys, nc);
   }
 
   /** The first corner q (in cs order) not marked in `used` whose side is y, or -1
@@ -462,22 +498,21 @@ class SplitState {
   /** Sum of the grid positions of v's distinct neighbours other than `other` into
    * total; returns their number (stream_coding._ring_sum). */
   ringSum(v, other, total) {
-    const { faces, nb, q } = this;
-    let m = 0;
+    const { faces, q, seen } = this;
+    const stamp = ++this.stamp; // marks the neighbours counted in this call
+    total.fill(0);
+    let count = 0;
     for (let c = this.head[v]; c !== -1; c = this.next[c]) {
       const f = c - (c % 3);
       for (let j = 0; j < 3; j++) {
         const w = faces[f + j];
-        if (w !== v && w !== other) nb[m++] = w;
+        if (w === v || w === other || seen[w] === stamp) continue;
+        seen[w] = stamp;
+        count++;
+        total[0] += q[3 * w];
+        total[1] += q[3 * w + 1];
+        total[2] += q[3 * w + 2];
       }
-    }
-    sortPrefix(nb, m);
-    total.fill(0);
-    let count = 0;
-    for (let j = 0; j < m; j++) {
-      if (j > 0 && nb[j] === nb[j - 1]) continue;
-      count++;
-      for (let d = 0; d < 3; d++) total[d] += q[3 * nb[j] + d];
     }
     return count;
   }
@@ -485,11 +520,8 @@ class SplitState {
   /** The predicted t - s_new once the split's faces are in place: s and t each at the
    * centroid of its ring, solved for both, floored (stream_coding._span_prediction). */
   spanPrediction(s, t, prediction) {
-    let need = 0;
-    for (const v of [s, t]) for (let c = this.head[v]; c !== -1; c = this.next[c]) need += 2;
-    if (need > this.nb.length) this.nb = new Int32Array(2 * need);
-    const sumA = [0, 0, 0];
-    const sumB = [0, 0, 0];
+    const sumA = this.sumA;
+    const sumB = this.sumB;
     const a = this.ringSum(t, s, sumA);
     const b = this.ringSum(s, t, sumB);
     prediction.fill(0);
@@ -633,7 +665,8 @@ export class ProgressiveLevels {
       const hi = Math.floor(((bucket + 1) * t + S_BUCKETS - 1) / S_BUCKETS);
       if (hi <= lo) fail(`split ${t}: names a vertex that does not exist yet`);
       const s = lo + coder.uniform(probs, S_SLOTS, hi - lo);
-      const [nc, nn] = state.gather(s);
+      state.gather(s);
+      const { nc, nn } = state;
       state.keysFor = null; // the fan keys are not this split's yet
       state.ringShape(s, nc, nn, shape);
       const count = coder.integer(probs, COUNT_SLOTS, false);

@@ -233,7 +233,11 @@ def test_values_off_their_grid_in_msgpack_are_refused(spot_pm):
 
 
 def _first_payload(pm, n2):
-    return next(iter_frames(encode_split_frames(pm, pm.n_base, n2)))
+    return _first_payload_from(pm, pm.n_base, n2)
+
+
+def _first_payload_from(pm, n1, n2):
+    return next(iter_frames(encode_split_frames(pm, n1, n2)))
 
 
 def _fresh(pm):
@@ -324,11 +328,16 @@ def test_a_frame_whose_wedges_lie_is_refused(spot_pm, change):
 
 
 def test_a_frame_for_another_wedge_count_is_refused(spot_pm):
+    """The first frame of a stream from another level (a later frame of a stream
+    continues its contexts: refused for that before its counts are looked at)."""
+    later = _first_payload_from(spot_pm, spot_pm.n_base + 20, spot_pm.n_base + 40)
+    decoder = _fresh(spot_pm)
+    with pytest.raises(qem_core.CorruptFileError, match="refines"):
+        decoder.feed(later)
     frames = list(
         iter_frames(
             encode_split_frames(spot_pm, spot_pm.n_base, spot_pm.n_base + 40, splits_per_frame=20)
         )
     )
-    decoder = _fresh(spot_pm)
-    with pytest.raises(qem_core.CorruptFileError, match="refines"):
-        decoder.feed(frames[1])
+    with pytest.raises(qem_core.CorruptFileError, match="continues a stream"):
+        _fresh(spot_pm).feed(frames[1])

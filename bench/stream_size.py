@@ -10,7 +10,7 @@ airplane_colored.ply's colours), then
 
 - the split stream from the base mesh to the full mesh, `qem_core.stream.encode_split_frames`
   on a --bits grid: total bytes (frame headers included), bytes per vertex split, and the
-  bytes its wedge keys add (the frames rewritten without them, deflated the same way, and
+  bytes its wedge keys add (the frames rewritten without them, sealed the same way, and
   the difference taken);
 - the base mesh as the server's msgpack form (positions on the --bits grid, its
   attributes and quantised wedges), the first thing a client fetches;
@@ -32,6 +32,7 @@ entry into bench/results/stream-size.json.
 from __future__ import annotations
 
 import shlex
+import struct
 import sys
 import time
 import zlib
@@ -104,44 +105,35 @@ def stream_sizes(progressive_mesh, bits: int) -> dict[str, Any]:
         "stream_bytes": sum(frame_sizes),
         "wedge_bytes": sum(frame_sizes) - sum(map(len, without_wedges(frames))),
         "stream_encode_s": encode_s,
-        "field_bytes": field_bytes(frames),
+        "field_bytes": field_bytes(pm, bits),
         "base_msgpack_bytes": msgpack_bytes(pm.n_base),
         "full_msgpack_bytes": msgpack_bytes(pm.n_full),
     }
 
 
 def without_wedges(frames: Sequence[bytes]) -> list[bytes]:
-    """The frames with their wedge keys dropped, deflated as qem_core.stream does: the
-    geometry-only stream of the same splits."""
+    """The frames with their wedge keys dropped, sealed as qem_core.stream does (msgpack
+    map + CRC-32): the geometry-only stream of the same splits."""
     import msgpack
-
-    from qem_core.stream import _DEFLATE_LEVEL
 
     stripped = []
     for frame in frames:
-        body = msgpack.unpackb(zlib.decompress(frame[4:]))
+        body = msgpack.unpackb(frame[4:-4])
         geometry = {key: value for key, value in body.items() if not key.startswith("wedge")}
-        payload = zlib.compress(msgpack.packb(geometry), _DEFLATE_LEVEL)
-        stripped.append(len(payload).to_bytes(4, "little") + payload)
+        payload = msgpack.packb(geometry)
+        payload += struct.pack("<I", zlib.crc32(payload))
+        stripped.append(struct.pack("<I", len(payload)) + payload)
     return stripped
 
 
-def field_bytes(frames: Sequence[bytes]) -> dict[str, int]:
-    """Where a stream's bytes go: each byte-string field of the frames' msgpack maps
-    deflated on its own (zlib level 9), summed over the frames, by field name.
+def field_bytes(progressive_mesh, bits: int) -> dict[str, int]:
+    """Where a stream's bytes go: each field of the frames range-coded on its own
+    (``qem_core.stream.range_code_fields`` with that field's flag, the wedge fields by
+    ``range_code_wedges`` one at a time), summed over the frames, by field name
+    (bench.stream_entropy also gives the deflated byte planes' sizes)."""
+    from .stream_entropy import measure
 
-    A frame is a 4-byte length and a zlib stream of one msgpack map (qem_core.stream);
-    the fields compressed apart add up to a little more than the frames, which deflate
-    them together."""
-    import msgpack
-
-    sizes: dict[str, int] = {}
-    for frame in frames:
-        body = msgpack.unpackb(zlib.decompress(frame[4:]))
-        for name, value in body.items():
-            if isinstance(value, bytes):
-                sizes[name] = sizes.get(name, 0) + len(zlib.compress(value, 9))
-    return sizes
+    return measure(progressive_mesh, bits)["range"]
 
 
 def _single_rate_sizes(path: Path, bits: int, draco_levels: Sequence[int]) -> dict:
@@ -240,8 +232,9 @@ def write_stream_size_report(
         "keeps appearance attributes (spot.obj's UVs, airplane_colored.ply's colours; "
         "spot.ply has none). Stream: `qem_core.stream.encode_split_frames(pm, n_base, "
         f"n_full, {bits})`, every frame with its 4-byte length; its wedge keys (stream "
-        "version 3) carry the attributes: *wedge* is what they add (the frames deflated "
-        "without them, the difference taken), *geometry* the rest. Base: the base mesh "
+        "version 3, range-coded in each frame's `wedges` bytes) carry the attributes: "
+        "*wedge* is what they add (the frames sealed without them, the difference "
+        "taken), *geometry* the rest. Base: the base mesh "
         f"as the server's msgpack form (positions on the same {bits}-bit grid, "
         "attributes and quantised wedges). Total = base + stream: the whole download "
         "from nothing to the full mesh. Full msgpack: the full mesh in that msgpack form "
@@ -326,7 +319,7 @@ def write_stream_size_report(
 
 
 def _field_lines(entries: Sequence[dict[str, Any]]) -> list[str]:
-    """A table of bytes per split by stream field, each field deflated on its own."""
+    """A table of bytes per split by stream field, each field range-coded on its own."""
     measured = [entry for entry in entries if entry.get("field_bytes")]
     if not measured:
         return []
@@ -345,10 +338,11 @@ def _field_lines(entries: Sequence[dict[str, Any]]) -> list[str]:
     return [
         "## Where the stream's bytes go (bytes per split)",
         "",
-        "Each byte-string field of the frames deflated on its own (zlib level 9) and "
-        "summed over the frames; fields compressed apart add up to a little more than the "
-        "stream, which deflates them together (last column). Field meanings: "
-        "docs/formats.md.",
+        "Each field of the frames range-coded on its own (its contexts are its own, so "
+        "only the 4 flush bytes per frame are counted again in every field; those of "
+        "the `wedges` bytes once, in `wedge_values`) and summed over the frames; the "
+        "stream (last column) also holds each frame's msgpack "
+        "header and CRC-32. Field meanings: docs/formats.md.",
         "",
         *markdown_table(
             ["mesh", *(f"`{name}`" for name in names), "stream"],

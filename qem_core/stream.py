@@ -1,26 +1,30 @@
 """The vertex-split stream: msgpack frames, connectivity, positions and appearance coded
-against the mesh being refined, deflated.
+against the mesh being refined, range-coded.
 
 A stream refining lod(n1) to lod(n2) is a sequence of frames; each frame is
 
-    uint32 little-endian length L, then L bytes of zlib (RFC 1950 "deflate") data
-    holding one msgpack map (format "qem-splits", version 3)
+    uint32 little-endian length L, then L bytes: one msgpack map (format "qem-splits",
+    version 3) followed by the CRC-32 of its bytes
 
-so a browser decodes it with DecompressionStream("deflate"). Positions live on a grid of
-2^bits - 1 steps per axis over the box of every position the progressive mesh uses
-(``grid`` = [origin xyz, step xyz]); the client keeps its mesh as grid integers. Encoder
-and decoder keep the connectivity of the level being refined (per-vertex corner lists),
-so each split codes its new faces' third corners as indices into the split vertex's
-neighbours, its relabelled faces as a mask over the split vertex's corners XOR the fan
-its new faces predict, and its positions as the edge's midpoint against s's old position
-and the edge's span against a prediction from the two rings
-(``_kernels/stream_coding.py``). A mesh with appearance attributes adds the wedge
-side (``_kernels/wedge_coding.py``): each corner of the split's fan and new faces names
-its wedge by a symbol, mostly 0 (predicted), and the wedges' values, on a grid per
-attribute (``wedge_grid_for``), are residuals against the values they had; a mesh
-without attributes has no wedge keys at all. Integer arrays are stored as byte planes
-(all low bytes, then all next bytes...) so that deflate sees the long runs of zero high
-bytes. docs/formats.md gives every field.
+Positions live on a grid of 2^bits - 1 steps per axis over the box of every position the
+progressive mesh uses (``grid`` = [origin xyz, step xyz], in a stream's first frame);
+the client keeps its mesh as grid integers. Encoder and decoder keep the connectivity of
+the level being refined (per-vertex corner lists), so each split codes its new faces'
+third corners as indices into the split vertex's neighbours or steps around it, its
+relabelled faces against the fan its new faces predict, and its positions as the edge's
+span against a prediction from the two rings and the ring's plane, then the edge's
+midpoint against s's old position in a frame of the edge and the ring's normal
+(``_kernels/stream_coding.py``). The symbols go through an adaptive binary range coder
+(``_kernels/range_coder.py``) in the order the decoder needs them, with contexts the
+decoder knows from its state (the split vertex's neighbour count, the scale and shape
+of its ring, the edge just decoded); the frames of one stream carry the contexts from
+one to the next. A mesh with appearance attributes adds the wedge side
+(``_kernels/wedge_coding.py``): each corner of the split's fan and new faces names its
+wedge by a symbol, mostly 0 (predicted), and the wedges' values, on a grid per attribute
+(``wedge_grid_for``), are residuals against the values they had; these fields are
+range-coded by the same coder, with contexts of their own (carried from frame to frame
+too), into the frame's ``wedges`` bytes. A mesh without attributes has no wedge keys at
+all. docs/formats.md gives every field.
 """
 
 from __future__ import annotations
@@ -33,20 +37,33 @@ from typing import NamedTuple
 import msgpack
 import numpy as np
 
+from ._kernels import range_coder
 from ._kernels.stream_coding import (
+    ALL_FIELDS,
     BAD_BACK,
     BAD_CODE,
-    BAD_MASK,
+    BAD_COUNT,
     BAD_THIRD,
     BAD_VERTEX,
+    CONTEXT_SLOTS,
     LONG_DATA,
     NO_CORNER,
+    POSITION_SYMBOLS,
     SHORT_DATA,
+    SPLIT_CONTEXT,
+    code_splits,
     decode_connectivity,
     encode_connectivity,
     link_corners,
 )
-from ._kernels.wedge_coding import BAD_VALUE, BAD_WEDGE, BAD_WEDGE_CORNER
+from ._kernels.wedge_coding import (
+    BAD_VALUE,
+    BAD_WEDGE,
+    BAD_WEDGE_CORNER,
+    code_wedge_fields,
+    decode_wedge_fields,
+    wedge_context_slots,
+)
 from .codecs.msgpack_mesh import read_msgpack, read_msgpack_wedges
 from .errors import CorruptFileError, InvalidOptionsError
 from .progressive import ProgressiveMesh, VertexSplits
@@ -61,6 +78,7 @@ __all__ = [
     "Grid",
     "SplitStreamDecoder",
     "encode_split_frames",
+    "split_frame_symbols",
     "grid_for",
     "iter_frames",
     "quantised_wedges",
@@ -70,16 +88,23 @@ __all__ = [
 MEDIA_TYPE = "application/x-qem-splits"
 STREAM_VERSION = 3
 # Frames grow from FIRST_FRAME_SPLITS to SPLITS_PER_FRAME splits (doubling), so that a
-# viewer refines early in the stream and big ranges still deflate well.
+# viewer refines early in the stream (each frame starts its contexts afresh, so the
+# first ones cost a little more).
 FIRST_FRAME_SPLITS = 512
 SPLITS_PER_FRAME = 8192
 _FRAME_LIMIT = 64 << 20
-# Deflate level 6, not 9: on dragon's whole stream 9 is 0.4 % smaller but 3.9x slower
-# (3.8 s against 1.0 s), and encoding is what a viewer waits for.
-_DEFLATE_LEVEL = 6
-# A full frame of 8192 splits inflates to well under 1 MiB; 256 MiB leaves room for
-# explicit faces and long relabel lists while bounding what a hostile frame costs.
-_INFLATED_LIMIT = 256 << 20
+# What a decoder allocates for one frame is bounded: at most this many splits and new
+# faces (a frame of 8192 splits has about 16,000), and at most _ITEMS_PER_BYTE of either
+# per coded byte (a split codes at least 6 decisions, a face at least 3, and a decision
+# costs at least 1/177 bit: 512 per byte is well above what any encoder can reach).
+FRAME_SPLIT_LIMIT = 1 << 16
+FRAME_FACE_LIMIT = 1 << 22
+_ITEMS_PER_BYTE = 512
+# The wedge fields likewise: at most FRAME_WEDGE_LIMIT symbols + backs + values, and at
+# most _WEDGE_ITEMS_PER_BYTE per coded byte of ``wedges`` (each is at least one decision,
+# at least 1/189 bit: 1512 per byte at most).
+FRAME_WEDGE_LIMIT = 1 << 24
+_WEDGE_ITEMS_PER_BYTE = 2048
 
 
 def grid_for(pm: ProgressiveMesh, bits: int = 16) -> Grid:
@@ -89,30 +114,112 @@ def grid_for(pm: ProgressiveMesh, bits: int = 16) -> Grid:
     return Grid.over_box(*pm.position_bounds, bits)
 
 
-def _planes(values: np.ndarray, dtype: str) -> bytes:
-    """Little-endian integers as byte planes."""
-    raw = np.ascontiguousarray(values, dtype=dtype)
-    return raw.view(np.uint8).reshape(-1, raw.dtype.itemsize).T.tobytes()
+class FrameSymbols(NamedTuple):
+    """What one frame codes, before the range coder: ``encode_connectivity``'s arrays
+    (docs/formats.md gives each field) and the per-split contexts from the state."""
+
+    n_from: int
+    split_back: np.ndarray  # (k,) t - s
+    new_face_counts: np.ndarray  # (k,)
+    face_codes: np.ndarray  # (new faces,) 0..6
+    third_corners: np.ndarray  # (faces of code 0-5,) index into nb, 255 escaped, -1 walked
+    wing_steps: np.ndarray  # (faces of code 0-5,) the second wing's walk step, or -1
+    walk_lengths: np.ndarray  # (faces of code 0-5,) the length of that walk
+    corners_back: np.ndarray  # t - corner of escaped and explicit corners
+    relabel_masks: np.ndarray  # per corner of s: bit 0 relabelled, bit 1 predicted
+    positions: np.ndarray  # (k, 7): position_span x3, placement, position_mid x3
+    position_slots: np.ndarray  # (k, 7, 2): their contexts
+    split_context: np.ndarray  # (k, SPLIT_CONTEXT)
+    wedges: WedgeArrays | None = None  # the wedge side (None without attributes)
 
 
-def _from_planes(data: bytes, dtype: str, count: int) -> np.ndarray:
-    itemsize = np.dtype(dtype).itemsize
-    if len(data) != count * itemsize:
-        raise CorruptFileError(
-            f"split frame: a field holds {len(data)} bytes, expected {count * itemsize}"
-        )
-    planes = np.frombuffer(data, np.uint8).reshape(itemsize, count)
-    return np.ascontiguousarray(planes.T).view(dtype).reshape(count)
+def range_code_fields(
+    symbols: FrameSymbols, fields: int = ALL_FIELDS, probs: np.ndarray | None = None
+) -> bytes:
+    """The frame's fields range-coded; ``fields`` picks some of them
+    (``stream_coding.FIELD_*``) to measure them one by one. The contexts are ``probs``
+    (updated in place: what the stream's next frame starts from), fresh when None."""
+    if probs is None:
+        probs = new_contexts()
+    capacity = 64 + 16 * symbols.split_back.shape[0] + 8 * symbols.face_codes.shape[0]
+    while True:
+        out = np.empty(capacity, np.uint8)
+        enc = range_coder.new_encoder()
+        trial = probs.copy()
+        code_splits(enc, out, trial, fields, *symbols[:-1])
+        written = range_coder.finish(enc, out)
+        if written <= capacity:
+            probs[:] = trial
+            return out[:written].tobytes()
+        capacity = 2 * written
 
 
-def _zigzag(values: np.ndarray) -> np.ndarray:
-    v = values.astype(np.int64)
-    return ((v << 1) ^ (v >> 63)).astype(np.uint64)
+def range_code_wedges(fields: WedgeArrays, probs: np.ndarray | None = None) -> bytes:
+    """A frame's wedge fields range-coded (an empty field costs nothing, so passing one
+    field and empty others measures that field). The contexts are ``probs`` (updated in
+    place, for the stream's next frame), fresh when None."""
+    counts = np.require(fields.counts, np.int64, ["C"])
+    symbols = np.require(fields.symbols, np.uint8, ["C"])
+    backs = np.require(fields.backs, np.int64, ["C"])
+    rows = np.require(fields.rows, np.int64, ["C"])
+    if probs is None:
+        probs = new_wedge_contexts(rows.shape[1])
+    capacity = 64 + 2 * counts.size + symbols.shape[0] + 8 * backs.shape[0] + 8 * rows.size
+    while True:
+        out = np.empty(capacity, np.uint8)
+        enc = range_coder.new_encoder()
+        trial = probs.copy()
+        code_wedge_fields(enc, out, trial, counts, symbols, backs, rows)
+        written = range_coder.finish(enc, out)
+        if written <= capacity:
+            probs[:] = trial
+            return out[:written].tobytes()
+        capacity = 2 * written
 
 
-def _unzigzag(values: np.ndarray) -> np.ndarray:
-    v = values.astype(np.uint64)
-    return ((v >> np.uint64(1)).astype(np.int64)) ^ -((v & np.uint64(1)).astype(np.int64))
+def new_contexts() -> np.ndarray:
+    """The contexts a stream's first frame starts from."""
+    return range_coder.new_probs(CONTEXT_SLOTS)
+
+
+def new_wedge_contexts(width: int) -> np.ndarray:
+    """The wedge fields' contexts a stream's first frame starts from (``width`` value
+    columns)."""
+    return range_coder.new_probs(wedge_context_slots(width))
+
+
+class _Contexts(NamedTuple):
+    """The contexts a frame leaves to the stream's next one."""
+
+    splits: np.ndarray
+    wedges: np.ndarray | None  # None for a mesh without attributes
+
+
+def _frame_symbols(
+    splits: VertexSplits,
+    state: _State,
+    quantised: np.ndarray,
+    grid: Grid,
+    wedges: WedgeCoder | None = None,
+) -> FrameSymbols:
+    k = splits.split_vertex.shape[0]
+    positions = np.zeros((k, POSITION_SYMBOLS), np.int64)
+    position_slots = np.zeros((k, POSITION_SYMBOLS, 2), np.int64)
+    split_context = np.zeros((k, SPLIT_CONTEXT), np.int64)
+    codes, thirds, steps, walks, backs, masks, status = encode_connectivity(
+        state.faces, splits.faces_from, state.head, state.nxt, splits.n_from,
+        splits.split_vertex, splits.new_faces, splits.new_face_counts,
+        splits.relabel_offsets, splits.relabel_faces, quantised,
+        grid.quantise(splits.split_positions), positions, position_slots, split_context,
+    )  # fmt: skip
+    if status:
+        raise ValueError("inconsistent splits: a relabelled face has no corner s")
+    split_back = splits.n_from + np.arange(k) - splits.split_vertex
+    return FrameSymbols(
+        splits.n_from, split_back, splits.new_face_counts, codes, thirds, steps, walks, backs,
+        masks, positions, position_slots, split_context,
+        None if wedges is None else wedges.encode(splits),
+    )  # fmt: skip
 
 
 def _encode_frame(
@@ -121,41 +228,36 @@ def _encode_frame(
     quantised: np.ndarray,
     grid: Grid,
     wedges: WedgeCoder | None,
-) -> bytes:
-    k = splits.split_vertex.shape[0]
-    mid = np.zeros((k, 3), np.int64)
-    span = np.zeros((k, 3), np.int64)
-    codes, thirds, backs, masks, status = encode_connectivity(
-        state.faces, splits.faces_from, state.head, state.nxt, splits.n_from,
-        splits.split_vertex, splits.new_faces, splits.new_face_counts,
-        splits.relabel_offsets, splits.relabel_faces, quantised,
-        grid.quantise(splits.split_positions), mid, span,
-    )  # fmt: skip
-    if status:
-        raise ValueError("inconsistent splits: a relabelled face has no corner s")
-    body = {
+    contexts: _Contexts | None,
+) -> tuple[bytes, _Contexts]:
+    """One frame and the contexts it leaves; ``contexts`` are those the stream's previous
+    frame left (None for the first frame, which starts afresh and carries the grid)."""
+    first = contexts is None
+    if first:
+        width = None if wedges is None else wedges.level.values.shape[1]
+        contexts = _Contexts(new_contexts(), None if width is None else new_wedge_contexts(width))
+    symbols = _frame_symbols(splits, state, quantised, grid, wedges)
+    body: dict = {
         "format": "qem-splits",
         "version": STREAM_VERSION,
         "n_from": splits.n_from,
         "n_to": splits.n_to,
         "faces_from": splits.faces_from,
-        "bits": grid.bits,
-        "grid": [*map(float, grid.origin), *map(float, grid.step)],
-        "n_new_faces": int(splits.new_faces.shape[0]),
-        "n_backs": int(backs.shape[0]),
-        "split_back": _planes(splits.n_from + np.arange(k) - splits.split_vertex, "<u4"),
-        "new_face_counts": _planes(splits.new_face_counts, "<u2"),
-        "face_codes": codes.tobytes(),
-        "third_corners": thirds.tobytes(),
-        "corners_back": _planes(backs, "<u4"),
-        "relabel_masks": masks.tobytes(),
-        "position_mid": _planes(_zigzag(mid.T.reshape(-1)), "<u4"),
-        "position_span": _planes(_zigzag(span.T.reshape(-1)), "<u4"),
     }
+    if first:
+        body["bits"] = grid.bits
+        body["grid"] = [*map(float, grid.origin), *map(float, grid.step)]
+    else:
+        body["continues"] = True
+    body["n_new_faces"] = int(splits.new_faces.shape[0])
+    body["splits"] = range_code_fields(symbols, probs=contexts.splits)
     if wedges is not None:
-        body.update(_wedge_body(wedges.grid, splits.wedges.wedges_from, wedges.encode(splits)))
-    payload = zlib.compress(msgpack.packb(body), _DEFLATE_LEVEL)
-    return struct.pack("<I", len(payload)) + payload
+        body.update(
+            _wedge_body(wedges.grid, splits.wedges.wedges_from, symbols.wedges, contexts.wedges)
+        )
+    payload = msgpack.packb(body)
+    payload += struct.pack("<I", zlib.crc32(payload))
+    return struct.pack("<I", len(payload)) + payload, contexts
 
 
 class _State(NamedTuple):
@@ -174,50 +276,63 @@ def _state(faces: np.ndarray, n_vertices: int, face_capacity: int) -> _State | N
     return state if link_corners(held, faces.shape[0], state.head, state.nxt) else None
 
 
-def _wedge_body(grid: AttributeGrid, wedges_from: int, fields: WedgeArrays) -> dict:
-    """A frame's wedge keys (absent from the frames of a mesh without attributes)."""
-    if fields.counts.max(initial=0) > 0xFFFF:
-        raise ValueError("a split has more than 65535 new wedges or extra records")
+def _wedge_body(
+    grid: AttributeGrid, wedges_from: int, fields: WedgeArrays, probs: np.ndarray
+) -> dict:
+    """A frame's wedge keys (absent from the frames of a mesh without attributes), coded
+    with the contexts ``probs`` (updated)."""
     return {
         "wedge_grid": grid.to_dict(),
         "wedges_from": int(wedges_from),
-        "n_wedge_rows": int(fields.rows.shape[0]),
+        "n_wedge_symbols": int(fields.symbols.shape[0]),
         "n_wedge_backs": int(fields.backs.shape[0]),
-        "wedge_counts": _planes(fields.counts.reshape(-1), "<u2"),
-        "wedge_corners": fields.symbols.tobytes(),
-        "wedge_backs": _planes(fields.backs, "<u4"),
-        "wedge_values": _planes(_zigzag(fields.rows.T.reshape(-1)), "<u4"),
+        "n_wedge_rows": int(fields.rows.shape[0]),
+        "wedges": range_code_wedges(fields, probs),
     }
 
 
-def _wedge_fields(body: dict, k: int) -> tuple[AttributeGrid, int, WedgeArrays]:
-    """The grid, wedges_from and arrays of a frame's wedge keys (KeyError, TypeError...
-    on a missing or mistyped key, CorruptFileError on inconsistent lengths)."""
+def _wedge_fields(
+    body: dict, k: int, previous: np.ndarray | None
+) -> tuple[AttributeGrid, int, WedgeArrays, np.ndarray]:
+    """The grid, wedges_from and decoded arrays of a frame's wedge keys, and the contexts
+    they leave (KeyError, TypeError... on a missing or mistyped key, CorruptFileError on
+    counts the bytes cannot hold or bytes that do not decode). ``previous``: the wedge
+    contexts the stream's previous frame left, for a frame that continues it (else
+    None: fresh contexts)."""
     try:
         grid = AttributeGrid.from_dict(body["wedge_grid"])
     except (ValueError, AttributeError) as error:
         raise CorruptFileError(f"split frame: bad 'wedge_grid' ({error})") from None
     width = int(sum(grid.widths))
-    wedges_from, n_rows, n_backs = body["wedges_from"], body["n_wedge_rows"], body["n_wedge_backs"]
-    for value in (wedges_from, n_rows, n_backs):
+    wedges_from, n_symbols = body["wedges_from"], body["n_wedge_symbols"]
+    n_backs, n_rows = body["n_wedge_backs"], body["n_wedge_rows"]
+    for value in (wedges_from, n_symbols, n_backs, n_rows):
         if not isinstance(value, int) or value < 0:
             raise CorruptFileError(f"split frame: a wedge count is {value!r}")
-    counts = _from_planes(body["wedge_counts"], "<u2", 3 * k).astype(np.int64).reshape(3, k)
+    coded = np.frombuffer(_bin(body["wedges"], None, "wedges"), np.uint8)
+    # Bounded before decode_wedge_fields allocates them (as _check_frame_size).
+    items = n_symbols + n_backs + width * n_rows + 3 * k
+    if items > FRAME_WEDGE_LIMIT or items > _WEDGE_ITEMS_PER_BYTE * (coded.shape[0] + 1):
+        raise CorruptFileError(
+            f"split frame: the coded wedges ({coded.shape[0]} bytes) cannot hold {n_symbols} "
+            f"symbols, {n_backs} backs and {n_rows} value rows"
+        )
+    if previous is None:
+        probs = new_wedge_contexts(width)
+    elif previous.shape[0] == wedge_context_slots(width):
+        probs = previous.copy()
+    else:
+        raise CorruptFileError("split frame: its wedge grid has other attributes than the last")
+    status, counts, symbols, backs, rows = decode_wedge_fields(
+        coded, k, n_symbols, n_backs, n_rows, width, probs
+    )
+    if status:
+        raise CorruptFileError(f"split frame: {_WEDGE_FIELD_STATUS[status]}")
     # Each new wedge and extra update has a value row: checked before the decoder
     # allocates wedges for them.
     if int(counts[0].sum() + counts[1].sum()) > n_rows:
         raise CorruptFileError("split frame: more new wedges and updates than value rows")
-    rows = _unzigzag(_from_planes(body["wedge_values"], "<u4", width * n_rows))
-    return (
-        grid,
-        wedges_from,
-        WedgeArrays(
-            counts,
-            np.frombuffer(_bin(body["wedge_corners"], None, "wedge_corners"), np.uint8),
-            _from_planes(body["wedge_backs"], "<u4", n_backs).astype(np.int64),
-            rows.reshape(width, n_rows).T,
-        ),
-    )
+    return grid, wedges_from, WedgeArrays(counts, symbols, backs, rows), probs
 
 
 def encode_split_frames(
@@ -226,9 +341,14 @@ def encode_split_frames(
     n_to: int,
     bits: int = 16,
     splits_per_frame: int = SPLITS_PER_FRAME,
+    _frame=None,
 ) -> Iterator[bytes]:
     """Frames of the splits refining lod(n_from) to lod(n_to), generated lazily."""
     grid = grid_for(pm, bits)
+    if not 1 <= splits_per_frame <= FRAME_SPLIT_LIMIT:
+        raise InvalidOptionsError(
+            f"splits_per_frame={splits_per_frame} must be in [1, {FRAME_SPLIT_LIMIT}]"
+        )
     n_from, n_to = pm.clamp(n_from), pm.clamp(n_to)
     if n_from > n_to:
         raise InvalidOptionsError(f"from={n_from} must not exceed to={n_to}")
@@ -245,11 +365,26 @@ def encode_split_frames(
         )  # fmt: skip
     frame_splits = min(FIRST_FRAME_SPLITS, splits_per_frame)
     start = n_from
+    contexts = None  # carried from frame to frame
     while start < n_to:
         stop = min(start + frame_splits, n_to)
         frame_splits = min(2 * frame_splits, splits_per_frame)
-        yield _encode_frame(pm.splits(start, stop), state, quantised, grid, wedges)
+        splits = pm.splits(start, stop)
+        if _frame is None:
+            frame, contexts = _encode_frame(splits, state, quantised, grid, wedges, contexts)
+            yield frame
+        else:
+            yield _frame(splits, state, quantised, grid, wedges)
         start = stop
+
+
+def split_frame_symbols(
+    pm: ProgressiveMesh, n_from: int, n_to: int, bits: int = 16, **options
+) -> Iterator[FrameSymbols]:
+    """What each frame of ``encode_split_frames`` codes, before the range coder (to
+    measure the fields, and to look at them in tests), its wedge arrays included for a
+    mesh with attributes."""
+    return encode_split_frames(pm, n_from, n_to, bits, **options, _frame=_frame_symbols)
 
 
 def iter_frames(chunks: Iterable[bytes]) -> Iterator[bytes]:
@@ -267,18 +402,6 @@ def iter_frames(chunks: Iterable[bytes]) -> Iterator[bytes]:
             del buffer[: 4 + length]
     if buffer:
         raise CorruptFileError(f"split stream ends inside a frame ({len(buffer)} bytes left)")
-
-
-def _inflate(payload: bytes) -> bytes:
-    """The frame's deflated body, refused beyond _INFLATED_LIMIT bytes: a small frame must
-    not be able to expand into gigabytes (a deflate bomb)."""
-    inflater = zlib.decompressobj()
-    body = inflater.decompress(payload, _INFLATED_LIMIT)
-    if inflater.unconsumed_tail:
-        raise CorruptFileError(f"split frame inflates beyond {_INFLATED_LIMIT >> 20} MiB")
-    if not inflater.eof:
-        raise CorruptFileError("split frame: the deflate data is truncated")
-    return body
 
 
 class SplitStreamDecoder:
@@ -301,6 +424,8 @@ class SplitStreamDecoder:
         self.quantised = np.asarray(quantised_vertices, np.int64).copy()
         self.faces = np.asarray(faces, np.int32).copy()
         self.grid: Grid | None = None
+        self._contexts: np.ndarray | None = None  # as the last frame decoded left them
+        self._wedge_contexts: np.ndarray | None = None  # the same, of the wedge fields
         self.wedge_grid: AttributeGrid | None = None
         self.face_wedges: np.ndarray | None = None
         self.quantised_values: np.ndarray | None = None
@@ -342,9 +467,11 @@ class SplitStreamDecoder:
         return self.wedge_grid.dequantise(self.quantised_values)
 
     def feed(self, payload: bytes) -> None:
+        if len(payload) < 4 or zlib.crc32(payload[:-4]) != struct.unpack("<I", payload[-4:])[0]:
+            raise CorruptFileError("split frame: the CRC-32 does not match (damaged frame)")
         try:
-            body = msgpack.unpackb(_inflate(payload))
-            if body.get("format") != "qem-splits":
+            body = msgpack.unpackb(payload[:-4])
+            if not isinstance(body, dict) or body.get("format") != "qem-splits":
                 raise CorruptFileError("not a qem-splits frame")
             version = body["version"]
             if not isinstance(version, int) or version > STREAM_VERSION:
@@ -356,56 +483,64 @@ class SplitStreamDecoder:
                     f"split frame version {version} is no longer read (this reads {STREAM_VERSION})"
                 )
             n_from, n_to, faces_from = body["n_from"], body["n_to"], body["faces_from"]
-            n_new, n_backs = body["n_new_faces"], body["n_backs"]
-            for value in (n_from, n_to, faces_from, n_new, n_backs):
+            n_new = body["n_new_faces"]
+            for value in (n_from, n_to, faces_from, n_new):
                 if not isinstance(value, int) or value < 0:
                     raise CorruptFileError(f"split frame: a count is {value!r}")
-            grid_values = np.asarray(body["grid"], np.float64)
-            # Checked here: a short or non-finite grid would only fail later, when the
-            # caller reads `vertices`, with an unrelated error.
-            if grid_values.shape != (6,) or not np.isfinite(grid_values).all():
-                raise CorruptFileError("split frame: 'grid' must be 6 finite numbers")
-            grid = Grid(grid_values[:3], grid_values[3:], int(body["bits"]))
+            continues = body.get("continues", False)
+            if continues is True:
+                # The contexts (and the grid) are those the stream's previous frame left.
+                if self._contexts is None or self.grid is None:
+                    raise CorruptFileError(
+                        "split frame continues a stream whose previous frame this decoder "
+                        "did not decode"
+                    )
+                grid = self.grid
+                contexts = self._contexts.copy()
+            elif continues is False:
+                grid_values = np.asarray(body["grid"], np.float64)
+                # Checked here: a short or non-finite grid would only fail later, when the
+                # caller reads `vertices`, with an unrelated error.
+                if grid_values.shape != (6,) or not np.isfinite(grid_values).all():
+                    raise CorruptFileError("split frame: 'grid' must be 6 finite numbers")
+                grid = Grid(grid_values[:3], grid_values[3:], int(body["bits"]))
+                contexts = new_contexts()
+            else:
+                raise CorruptFileError(f"split frame: 'continues' is {continues!r}")
             k = n_to - n_from
             if n_from != self.n_vertices or faces_from != self.faces.shape[0] or k < 0:
                 raise CorruptFileError(
                     f"frame refines {n_from} vertices / {faces_from} faces, the mesh has "
                     f"{self.n_vertices} / {self.faces.shape[0]}"
                 )
-            split_back = _from_planes(body["split_back"], "<u4", k).astype(np.int64)
-            counts = _from_planes(body["new_face_counts"], "<u2", k).astype(np.int64)
-            if int(counts.sum()) != n_new:
-                raise CorruptFileError("split frame: face counts do not add up to n_new_faces")
-            codes = np.frombuffer(_bin(body["face_codes"], n_new, "face_codes"), np.uint8)
-            thirds = np.frombuffer(_bin(body["third_corners"], None, "third_corners"), np.uint8)
-            backs = _from_planes(body["corners_back"], "<u4", n_backs).astype(np.int64)
-            masks = np.frombuffer(_bin(body["relabel_masks"], None, "relabel_masks"), np.uint8)
-            mid = _unzigzag(_from_planes(body["position_mid"], "<u4", 3 * k))
-            span = _unzigzag(_from_planes(body["position_span"], "<u4", 3 * k))
+            coded = np.frombuffer(_bin(body["splits"], None, "splits"), np.uint8)
+            _check_frame_size(k, n_new, coded.shape[0])
             wedge_fields = None
             if self.face_wedges is not None:
                 if "wedge_grid" not in body:
                     raise CorruptFileError(
                         "split frame carries no wedges, but the mesh being refined has some"
                     )
-                wedge_fields = _wedge_fields(body, k)
+                wedge_fields = _wedge_fields(
+                    body, k, self._wedge_contexts if continues is True else None
+                )
         except CorruptFileError:
             raise
-        except Exception as exc:  # zlib, msgpack, KeyError, TypeError...
+        except Exception as exc:  # msgpack, KeyError, TypeError...
             raise CorruptFileError(f"unreadable split frame: {exc}") from None
         wedges = None
         if wedge_fields is not None:
-            wedges = self._wedge_coder(*wedge_fields, n_to, faces_from + n_new)
+            wedges = self._wedge_coder(*wedge_fields[:3], n_to, faces_from + n_new)
         state = _state(self.faces, n_to, faces_from + n_new)
         if state is None:
             raise CorruptFileError("the mesh being refined has a face naming no vertex")
         quantised = np.zeros((n_to, 3), np.int64)
         quantised[:n_from] = self.quantised
         born = np.zeros((n_new, 3), np.int32)
+        counts = np.zeros(k, np.int64)
         status, split_vertex, relabel_counts, relabel_faces = decode_connectivity(
-            state.faces, faces_from, state.head, state.nxt, n_from, split_back, counts,
-            codes, thirds, backs, masks, quantised, mid.reshape(3, k).T.copy(),
-            span.reshape(3, k).T.copy(), born,
+            state.faces, faces_from, state.head, state.nxt, n_from, k, n_new, coded, quantised,
+            contexts, born, counts,
         )  # fmt: skip
         if status:
             raise CorruptFileError(f"split frame: {_STATUS[status]}")
@@ -416,13 +551,16 @@ class SplitStreamDecoder:
             )  # fmt: skip
             status = wedges.decode(wedge_fields[2], run)
             if status:
-                raise CorruptFileError(f"split frame: {_STATUS[status]}")
+                raise CorruptFileError(f"split frame: {_WEDGE_STATUS.get(status, _STATUS[status])}")
             self.face_wedges = wedges.face_wedges
             self.quantised_values = wedges.values
             self.wedge_grid = wedges.grid
         self.faces = state.faces
         self.quantised = quantised
         self.grid = grid
+        self._contexts = contexts
+        if wedge_fields is not None:
+            self._wedge_contexts = wedge_fields[3]
 
     def _wedge_coder(
         self,
@@ -447,20 +585,47 @@ class SplitStreamDecoder:
         return WedgeCoder(grid, connectivity, self.face_wedges, self.quantised_values, capacity)
 
 
+def _check_frame_size(n_splits: int, n_new_faces: int, n_bytes: int) -> None:
+    """Refuse counts no frame of n_bytes can hold, before allocating for them: every
+    split codes at least six decisions and every face three, each at least 1/177 bit
+    (range_coder), so a frame holds far fewer than _ITEMS_PER_BYTE of either per byte."""
+    if n_splits > FRAME_SPLIT_LIMIT or n_new_faces > FRAME_FACE_LIMIT:
+        raise CorruptFileError(
+            f"split frame: {n_splits} splits / {n_new_faces} faces, over the limit "
+            f"({FRAME_SPLIT_LIMIT} / {FRAME_FACE_LIMIT})"
+        )
+    if max(n_splits, n_new_faces) > _ITEMS_PER_BYTE * (n_bytes + 1):
+        raise CorruptFileError(
+            f"split frame: {n_bytes} coded bytes cannot hold {n_splits} splits and "
+            f"{n_new_faces} faces"
+        )
+
+
 def _bin(value, length: int | None, name: str) -> bytes:
     if not isinstance(value, bytes) or (length is not None and len(value) != length):
         raise CorruptFileError(f"split frame: {name!r} is not {length} bytes")
     return value
 
 
+_WEDGE_FIELD_STATUS = {
+    SHORT_DATA: "the coded wedges end early (truncated or corrupt data)",
+    LONG_DATA: "the coded wedges hold bytes past the last value",
+}
+
+# code_wedges' statuses where they differ from the splits' (its fields are arrays).
+_WEDGE_STATUS = {
+    SHORT_DATA: "a field ends before the splits do",
+    LONG_DATA: "a field holds more than the splits use",
+}
+
 _STATUS = {
     BAD_VERTEX: "a split names a vertex that does not exist yet",
+    BAD_COUNT: "the splits' face counts do not add up to n_new_faces",
     BAD_CODE: "a face code is not 0..6",
     BAD_THIRD: "a third corner is not a neighbour of the split vertex",
     BAD_BACK: "a new face names a vertex that does not exist yet",
-    SHORT_DATA: "a field ends before the splits do",
-    LONG_DATA: "a field holds more than the splits use",
-    BAD_MASK: "a relabel mask sets a bit past the split vertex's corners",
+    SHORT_DATA: "the coded splits end early (truncated or corrupt data)",
+    LONG_DATA: "the coded splits hold bytes past the last split",
     NO_CORNER: "a relabelled face has no corner s",
     BAD_WEDGE: "a corner or update names a wedge that does not exist",
     BAD_WEDGE_CORNER: "a wedge relabel names a corner that does not exist",

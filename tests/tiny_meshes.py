@@ -11,8 +11,9 @@ TETRAHEDRON = (
 # Octahedron: 6 vertices, 8 faces; it can shrink to a tetrahedron and no further.
 OCTAHEDRON = (
     np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float),
-    np.array([[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4],
-              [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]]),
+    np.array(
+        [[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]]
+    ),
 )
 
 #   3 ---- 2
@@ -28,13 +29,20 @@ SQUARE = (
 _CUBE_V = np.array([[x, y, z] for z in (0, 1) for y in (0, 1) for x in (0, 1)], float)
 OPEN_BOX = (
     _CUBE_V,
-    np.array([
-        [0, 2, 1], [1, 2, 3],  # bottom z=0
-        [0, 1, 5], [0, 5, 4],  # y=0
-        [2, 6, 7], [2, 7, 3],  # y=1
-        [0, 4, 6], [0, 6, 2],  # x=0
-        [1, 3, 7], [1, 7, 5],  # x=1
-    ]),
+    np.array(
+        [
+            [0, 2, 1],
+            [1, 2, 3],  # bottom z=0
+            [0, 1, 5],
+            [0, 5, 4],  # y=0
+            [2, 6, 7],
+            [2, 7, 3],  # y=1
+            [0, 4, 6],
+            [0, 6, 2],  # x=0
+            [1, 3, 7],
+            [1, 7, 5],  # x=1
+        ]
+    ),
 )
 
 
@@ -52,13 +60,43 @@ def grid(n: int = 5):
 
 def icosphere(subdivisions: int = 1, jitter: float = 0.0, seed: int = 0):
     """A unit icosphere, optionally with its vertices moved radially at random."""
-    t = (1 + 5 ** 0.5) / 2
-    vertices = [[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t],
-                [0, -1, -t], [0, 1, -t], [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]]
-    faces = [[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9],
-             [5, 11, 4], [11, 10, 2], [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2],
-             [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10],
-             [8, 6, 7], [9, 8, 1]]
+    t = (1 + 5**0.5) / 2
+    vertices = [
+        [-1, t, 0],
+        [1, t, 0],
+        [-1, -t, 0],
+        [1, -t, 0],
+        [0, -1, t],
+        [0, 1, t],
+        [0, -1, -t],
+        [0, 1, -t],
+        [t, 0, -1],
+        [t, 0, 1],
+        [-t, 0, -1],
+        [-t, 0, 1],
+    ]
+    faces = [
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
+    ]
     vertices = [np.array(v, float) / np.linalg.norm(v) for v in vertices]
     for _ in range(subdivisions):
         midpoint = {}
@@ -129,3 +167,32 @@ def bumpy_grid(n: int = 6, amplitude: float = 0.3, seed: int = 0):
     vertices, faces = grid(n)
     vertices[:, 2] = amplitude * np.random.default_rng(seed).uniform(-1, 1, n * n)
     return vertices, faces
+
+
+def degenerate_ring_pm():
+    """A progressive mesh (not built: drawn) whose two splits take the split stream's rarer
+    paths: the first splits a vertex whose only face is flat (collinear corners: its ring
+    has no normal, so the positions are coded axis by axis), and its new face (0, 6, 4)
+    reaches vertex 4, no neighbour of 0 (the third corner is escaped); the second leaves
+    t at s's old position (an end stayed), and its relabel is not the predicted fan.
+
+    base: f0 = (0, 1, 2) collinear, f1 = (3, 4, 5)
+    split 0: s=0 -> t=6   new f2 = (0, 6, 4)   relabel f0: 0 -> 6
+    split 1: s=6 -> t=7   new f3 = (7, 6, 1)   relabel f2: 6 -> 7, t at 6's position
+    """
+    from qem_core.progressive import ProgressiveMesh
+
+    return ProgressiveMesh(
+        base_vertices=np.array(
+            [[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0], [4, 0, 0], [3, 1, 0]]
+        ),
+        split_vertex=np.array([0, 6], np.int32),
+        split_positions=np.array(
+            [[[0.0, 0.5, 0.5], [1.5, 1, 0.25]], [[2.5, 1.5, 0.75], [1.5, 1, 0.25]]]
+        ),
+        face_corners=np.array([[0, 1, 2], [3, 4, 5], [0, 6, 4], [7, 6, 1]], np.int32),
+        level_faces=np.array([2, 3, 4]),
+        relabel_offsets=np.array([0, 1, 2]),
+        relabel_faces=np.array([0, 2], np.int32),
+        split_cost=np.array([2.0, 1.0]),
+    )

@@ -4,6 +4,10 @@ normals."""
 import numpy as np
 
 import qem_core
+from qem_core._kernels.wedge_coding import decode_wedge_fields
+from qem_core.quantise import AttributeGrid
+from qem_core.stream import new_wedge_contexts, range_code_wedges
+from qem_core.wedge_stream import WedgeArrays
 
 
 def seamed_mesh(
@@ -37,3 +41,35 @@ def seamed_mesh(
         vertex_attributes={k: v.astype(np.float32) for k, v in attributes.items()},
         corner_uvs=corner_uvs.astype(np.float32),
     )
+
+
+def wedge_arrays(body: dict, probs=None):
+    """The decoded wedge fields of a frame's msgpack map (a `WedgeArrays`), decoded with
+    the contexts ``probs`` (updated; fresh when None: the stream's first frame)."""
+    width = int(sum(AttributeGrid.from_dict(body["wedge_grid"]).widths))
+    k = body["n_to"] - body["n_from"]
+    coded = np.frombuffer(body["wedges"], np.uint8)
+    if probs is None:
+        probs = new_wedge_contexts(width)
+    status, *arrays = decode_wedge_fields(
+        coded, k, body["n_wedge_symbols"], body["n_wedge_backs"], body["n_wedge_rows"], width,
+        probs,
+    )  # fmt: skip
+    assert status == 0
+    return WedgeArrays(*arrays)
+
+
+def with_wedge_arrays(body: dict, change, probs=None) -> dict:
+    """The frame map with its wedge fields replaced by change(wedge_arrays(body)),
+    range-coded again (counts and all): a frame that lies about its wedges, well coded.
+    ``probs``: the wedge contexts the stream's previous frame left (None for a first
+    frame)."""
+    before = None if probs is None else probs.copy()
+    fields = change(wedge_arrays(body, None if probs is None else probs.copy()))
+    return {
+        **body,
+        "n_wedge_symbols": int(fields.symbols.shape[0]),
+        "n_wedge_backs": int(fields.backs.shape[0]),
+        "n_wedge_rows": int(fields.rows.shape[0]),
+        "wedges": range_code_wedges(fields, before),
+    }

@@ -1,40 +1,61 @@
-"""Split-stream (version 2) coding kernels: connectivity relative to the split vertex's
-neighbourhood, positions relative to the split vertex's old position.
+"""Split-stream (version 3) coding kernels: connectivity relative to the split vertex's
+neighbourhood, positions relative to the split vertex's old position in a frame fitted
+to its ring, the symbols range-coded (``code_splits`` / ``decode_connectivity``,
+contexts below the constants). docs/formats.md, section 2, gives every step.
 
 Encoder and decoder keep the same state, the mesh at the level being refined:
 
 - ``faces`` (capacity, 3) int32, the faces as they are at that level;
 - per-vertex lists of the corners (corner c = 3 * face + j) that name the vertex,
   ``head[v]`` the first corner of v (-1: none), ``nxt[c]`` the next corner of the same
-  vertex (-1: last). The order in a list does not matter: every use sorts.
+  vertex (-1: last). The order in a list does not matter: every use sorts or sums.
+- ``quantised``, the level's grid positions.
 
 For split i (s = split_vertex[i], t = n_from + i), with the corners of s sorted by corner
 index (``cs``) and the distinct other vertices of s's faces sorted (``nb``):
 
+- s is coded as a bucket of [0, t) (``S_BUCKETS`` of them) and its place in the bucket;
 - each new face gets a code 0..6 (0-2: (s, t, x) rotated by the code; 3-5: (t, s, x)
-  rotated; 6 explicit) and, for codes 0-5, the index of x in ``nb`` as one byte
-  (``ESCAPE`` = 255 when x is not there or the index is >= 255: x is then given as
-  ``t - x`` in ``backs``); an explicit face gives its three corners as ``t - corner``
-  in ``backs``. ``backs`` is in face order.
-- the corners of s whose faces the split relabels s -> t form a mask over ``cs``,
-  ``(nc + 7) // 8`` bytes (bit q of byte b is corner 8b + q), stored XOR the mask that
-  ``_predict`` derives from the new faces: the fan of faces swept from the wing x of the
-  (s, t, x) face to the wing of the (t, s, x) face, which is exactly the relabelled set
-  for a manifold edge split. Relabelling a marked corner's face turns its first corner
-  equal to s into t (the rule of apply_split_run), marks taken in ``cs`` order.
+  rotated; 6 explicit). The third corner x of the first face of code 0-5 (the first
+  *wing*) is its index in ``nb`` (``ESCAPE`` = 255 when x is not there or the index is
+  >= 255: x is then given as ``t - x`` in ``backs``). The first later face of the other
+  orientation (the second wing) gives x as its step on the walk around s from the first
+  wing (``_walk``), or the walk's length (not on it) followed by an index as above. An
+  explicit face gives its three corners as ``t - corner`` in ``backs``.
+- the corners of s whose faces the split relabels s -> t: one bit per corner of ``cs``,
+  coded against the bit that ``_predict`` derives from the new faces (the fan of faces
+  swept from the wing x of the (s, t, x) face to the wing of the (t, s, x) face, exactly
+  the relabelled set for a manifold edge split). Relabelling a marked corner's face turns
+  its first corner equal to s into t (the rule of apply_split_run), in ``cs`` order.
+- positions (``_ring_shape``, ``_span_axes``, ``_mid_axes``): the edge e = t - s_new
+  against the two rings' centroids, its axis nearest the ring's normal against the plane
+  of the ring; whether s or t stayed at s's old position; else the midpoint against the
+  old position in the frame (e, normal, e x normal).
 """
 
 import numba
 import numpy as np
 
+from . import range_coder as rc
+
+# Kernels that allocate nothing and return no array: no reference counting (as in
+# range_coder.py), a call costs no atomics per array argument.
+_kernel = numba.njit(cache=True, _nrt=False)
+
 ESCAPE = 255
 EXPLICIT = 6
-# The fan walk is quadratic in the number of corners of s; beyond this many the
-# prediction is the empty mask (the mask is then stored as it is).
-PREDICT_LIMIT = 64
 # Rings larger than this get no span prediction (keeps every product below 2^53, so a
 # JavaScript decoder computes the same floors in float64).
 SPAN_RING_LIMIT = 64
+# s in [0, t) is coded as its bucket floor(S_BUCKETS * s / t) (a tree of contexts: the
+# splits favour older vertices) then its offset in the bucket.
+S_BUCKETS = 32
+_S_BUCKET_BITS = 5
+# Coordinate differences and normals are shifted right to these many bits before they
+# are multiplied, so that every product and sum stays exact in float64 (JavaScript).
+_DIFF_BITS = 13
+_NORMAL_BITS = 12
+_LAPLACE_BITS = 20
 
 # Decoder status codes (0: fine); stream.py turns them into messages.
 BAD_VERTEX = 1
@@ -45,9 +66,58 @@ SHORT_DATA = 5
 LONG_DATA = 6
 BAD_MASK = 7
 NO_CORNER = 8
+BAD_COUNT = 9
+
+# Version 3 codes the fields with the adaptive range coder (range_coder.py), split by
+# split in the order the decoder needs them. The contexts of each field, as slots of one
+# probability array (a block per field, ``_ROWS`` blocks where a context picks a row):
+_ROWS = 21  # magnitude classes 0..20: bit lengths of a ring spread or an edge
+_STEP_ROWS = 9  # walk lengths 0..8 (8: 8 or more)
+_IS = rc.INTEGER_SLOTS
+_S_BUCKET_SLOTS = 0  # bucket of s: 5-bit tree
+_S_SLOTS = _S_BUCKET_SLOTS + S_BUCKETS  # s in its bucket: uniform, bit-position contexts
+_COUNT_SLOTS = _S_SLOTS + rc.UNIFORM_SLOTS  # new faces of the split: integer
+_CODE_SLOTS = _COUNT_SLOTS + _IS  # face code: 3-bit tree per previous code
+_ESCAPE_SLOT = _CODE_SLOTS + 8 * 8  # third corner escaped?
+_THIRD_SLOTS = _ESCAPE_SLOT + 1  # its index in nb: uniform, a row per min(nn, 16)
+_STEP_SLOTS = _THIRD_SLOTS + 17 * 8  # second wing's walk step: integer, row by walk length
+_BACK_SLOTS = _STEP_SLOTS + _STEP_ROWS * _IS  # corners_back values: integer
+_MASK_SLOTS = _BACK_SLOTS + _IS  # relabel mask: "as predicted?", then bits by prediction
+_SPAN_SLOTS = _MASK_SLOTS + 3  # position_span, tangent axes: row by the ring spread
+_SPAN_SIGN_SLOTS = _SPAN_SLOTS + _ROWS * _IS  # their signs, by the prediction's sign
+_NORMAL_SLOTS = _SPAN_SIGN_SLOTS + 3  # position_span, normal axis: row by the ring spread
+_PLACE_SLOTS = _NORMAL_SLOTS + _ROWS * _IS  # placement: "an end stayed?", "which?"
+_MID_SLOTS = _PLACE_SLOTS + 2  # position_mid without a frame: row by the edge's axis
+_MID1_SLOTS = _MID_SLOTS + _ROWS * _IS  # position_mid along e: row by the edge's axis
+_MID2_SLOTS = _MID1_SLOTS + _ROWS * _IS  # second and third: row by the edge's length
+_MID3_SLOTS = _MID2_SLOTS + _ROWS * _IS
+_MID_SIGN_SLOTS = _MID3_SLOTS + _ROWS * _IS  # signs of the first two, by the curvature
+CONTEXT_SLOTS = _MID_SIGN_SLOTS + 6
+
+# Field flags of ``code_splits`` (which fields to code: all for a frame, one at a time
+# to measure a field; each field has contexts of its own, so its bytes do not depend on
+# the others).
+FIELD_SPLIT_BACK = 1
+FIELD_FACE_COUNTS = 2
+FIELD_FACE_CODES = 4
+FIELD_THIRD_CORNERS = 8
+FIELD_CORNERS_BACK = 16
+FIELD_RELABEL_MASKS = 32
+FIELD_POSITION_SPAN = 64
+FIELD_POSITION_MID = 128
+ALL_FIELDS = 255
+# The split's values that a context needs and the decoder knows from its state before
+# the split (``_ring_shape``): nn, nc, the ring spread per axis (mean |Q[w] - Q[s]|),
+# the ring's normal (3), the sign of the curvature along it.
+SPLIT_CONTEXT = 9
+_NN, _NC, _SPREAD, _NORMAL, _BULGE = 0, 1, 2, 5, 8
+# Per split, the position symbols in coding order: three of position_span, the
+# placement, three of position_mid (coded only when the placement is 0).
+POSITION_SYMBOLS = 7
+_PLACEMENT = 3
 
 
-@numba.njit(cache=True)
+@_kernel
 def link_corners(faces, n_faces, head, nxt):
     """Fill the corner lists of faces[:n_faces]; returns False if a corner is not a
     vertex of ``head``."""
@@ -64,7 +134,7 @@ def link_corners(faces, n_faces, head, nxt):
     return True
 
 
-@numba.njit(cache=True)
+@_kernel
 def _unlink(head, nxt, v, c):
     prev = -1
     at = head[v]
@@ -79,7 +149,41 @@ def _unlink(head, nxt, v, c):
         nxt[prev] = nxt[c]
 
 
-@numba.njit(cache=True)
+@_kernel
+def _sort_prefix(values, n):
+    """Sort values[:n] in place: by insertion for the few entries of a vertex's ring,
+    else a heapsort (no allocation either way)."""
+    if n <= 32:
+        for i in range(1, n):
+            value = values[i]
+            j = i - 1
+            while j >= 0 and values[j] > value:
+                values[j + 1] = values[j]
+                j -= 1
+            values[j + 1] = value
+        return
+    for start in range(n // 2 - 1, -1, -1):
+        _sift_down(values, start, n)
+    for end in range(n - 1, 0, -1):
+        values[0], values[end] = values[end], values[0]
+        _sift_down(values, 0, end)
+
+
+@_kernel
+def _sift_down(values, root, n):
+    while True:
+        child = 2 * root + 1
+        if child >= n:
+            return
+        if child + 1 < n and values[child + 1] > values[child]:
+            child += 1
+        if values[root] >= values[child]:
+            return
+        values[root], values[child] = values[child], values[root]
+        root = child
+
+
+@_kernel
 def _gather(faces, head, nxt, s, cs, nb):
     """Sorted corners of s into cs, sorted distinct other vertices of its faces into nb;
     returns (nc, nn)."""
@@ -89,7 +193,7 @@ def _gather(faces, head, nxt, s, cs, nb):
         cs[nc] = c
         nc += 1
         c = nxt[c]
-    cs[:nc].sort()
+    _sort_prefix(cs, nc)
     m = 0
     for q in range(nc):
         f = cs[q] // 3
@@ -104,7 +208,7 @@ def _gather(faces, head, nxt, s, cs, nb):
 @numba.njit(cache=True)
 def _distinct_sorted(values, n):
     """Sort values[:n] in place and drop repeats; returns the new length."""
-    values[:n].sort()
+    _sort_prefix(values, n)
     m = 0
     for q in range(n):
         if m == 0 or values[q] != values[m - 1]:
@@ -113,7 +217,7 @@ def _distinct_sorted(values, n):
     return m
 
 
-@numba.njit(cache=True)
+@_kernel
 def _find(values, n, x):
     """Index of x in sorted values[:n], or -1."""
     lo, hi = 0, n
@@ -128,41 +232,91 @@ def _find(values, n, x):
     return -1
 
 
-@numba.njit(cache=True)
-def _predict(faces, s, cs, nc, xl, xr, mark):
-    """The predicted relabel mask over cs[:nc] into mark[:nc] (0/1): the fan of s's faces
-    from the one whose corner before s is xl, each next one sharing the edge to the
-    previous one's corner after s, until the corner after s is xr (walked backwards from
-    xr when there is no xl). xl, xr = -1 when absent."""
-    mark[:nc] = 0
-    if nc > PREDICT_LIMIT or (xl < 0 and xr < 0):
+@_kernel
+def _fan_keys(faces, s, cs, nc, forward, keys):
+    """keys[:nc] = side * nc + q sorted, side the corner before s (after s when not
+    ``forward``) in the face of cs[q]: the corners of each side in cs order, found by
+    bisection (``_fan_next``). keys[nc] remembers the direction: a split's walk and
+    prediction, which usually go the same way, key its corners once (the caller sets
+    keys[nc] = -1 for each new split)."""
+    if keys[nc] == forward:
         return
-    forward = xl >= 0
-    y = xl if forward else xr
-    for _ in range(nc):
-        found = -1
-        for q in range(nc):
-            if mark[q]:
-                continue
-            c = cs[q]
-            f = c // 3
-            j = c % 3
-            side = faces[f, (j + 2) % 3] if forward else faces[f, (j + 1) % 3]
-            if side == y:
-                found = q
-                break
-        if found < 0:
-            return
-        mark[found] = 1
-        c = cs[found]
+    keys[nc] = forward
+    for q in range(nc):
+        c = cs[q]
         f = c // 3
         j = c % 3
-        y = faces[f, (j + 1) % 3] if forward else faces[f, (j + 2) % 3]
-        if forward and y == xr:
-            return
+        side = faces[f, (j + 2) % 3] if forward else faces[f, (j + 1) % 3]
+        keys[q] = side * nc + q
+    _sort_prefix(keys, nc)
 
 
-@numba.njit(cache=True)
+@_kernel
+def _fan_next(keys, nc, used, y):
+    """The first corner q (in cs order) not ``used`` whose side (``_fan_keys``) is y, or
+    -1."""
+    lo, hi = 0, nc
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if keys[mid] < y * nc:
+            lo = mid + 1
+        else:
+            hi = mid
+    while lo < nc and keys[lo] < (y + 1) * nc:
+        q = keys[lo] - y * nc
+        if not used[q]:
+            return q
+        lo += 1
+    return -1
+
+
+@_kernel
+def _fan_step(faces, cs, q, forward):
+    """The corner after s (before s when not ``forward``) in the face of cs[q]."""
+    c = cs[q]
+    f = c // 3
+    j = c % 3
+    return faces[f, (j + 1) % 3] if forward else faces[f, (j + 2) % 3]
+
+
+@_kernel
+def _walk(faces, s, cs, nc, start, forward, stop, used, ys, keys):
+    """Walk around s from ``start``: each step takes the first corner of cs not yet
+    ``used`` whose face has y before s (after s when not ``forward``), marks it used and
+    moves y to its face's corner after s (before s); it stops when none is found, when y
+    is ``stop``, or after nc steps. The vertices met before stopping go into ys; returns
+    how many."""
+    used[:nc] = 0
+    _fan_keys(faces, s, cs, nc, forward, keys)
+    y = start
+    m = 0
+    for _ in range(nc):
+        q = _fan_next(keys, nc, used, y)
+        if q < 0:
+            break
+        used[q] = 1
+        y = _fan_step(faces, cs, q, forward)
+        if y == stop:
+            break
+        ys[m] = y
+        m += 1
+    return m
+
+
+@_kernel
+def _predict(faces, s, cs, nc, xl, xr, mark, ys, keys):
+    """The predicted relabel mask over cs[:nc] into mark[:nc] (0/1): the corners the walk
+    forward from xl to xr takes (the fan of s's faces between the two wings), or without
+    xl the walk backwards from xr. xl, xr = -1 when absent."""
+    if xl < 0 and xr < 0:
+        mark[:nc] = 0
+    elif xl >= 0:
+        _walk(faces, s, cs, nc, xl, True, xr, mark, ys, keys)
+    else:
+        _walk(faces, s, cs, nc, xr, False, -1, mark, ys, keys)
+
+
+@_kernel
 def _relabel(faces, head, nxt, f, s, t):
     """Turn the first corner of face f equal to s into t; False if there is none."""
     for j in range(3):
@@ -176,7 +330,7 @@ def _relabel(faces, head, nxt, f, s, t):
     return False
 
 
-@numba.njit(cache=True)
+@_kernel
 def _append_face(faces, head, nxt, f, a, b, c):
     faces[f, 0] = a
     faces[f, 1] = b
@@ -189,23 +343,43 @@ def _append_face(faces, head, nxt, f, a, b, c):
 
 
 @numba.njit(cache=True)
-def _scratch(head, nxt, s, cs, nb, mark):
-    """The buffers of _gather and _predict, grown for the corners of s if need be."""
+def _scratch_start():
+    """The buffers of a coder or decoder: cs, nb, mark, ys, keys of _gather, _predict and
+    _walk (``_scratch`` grows them), sums of _span_prediction, six 3-vectors (prediction,
+    work, binormal, edge, mid, axes) and the slots of a value."""
+    return (
+        np.empty(16, np.int64),
+        np.empty(32, np.int64),
+        np.empty(16, np.uint8),
+        np.empty(16, np.int64),
+        np.empty(16, np.int64),
+        np.zeros((2, 3), np.int64),
+        np.zeros((6, 3), np.int64),
+        np.zeros(2, np.int64),
+    )
+
+
+@numba.njit(cache=True)
+def _scratch(head, nxt, s, cs, nb, mark, ys, keys):
+    """The buffers of _gather, _predict and _walk, grown for the corners of s if need
+    be."""
     degree = 0
     c = head[s]
     while c != -1:
         degree += 1
         c = nxt[c]
-    if degree <= cs.shape[0]:
-        return cs, nb, mark
+    if degree < cs.shape[0]:
+        return cs, nb, mark, ys, keys
     return (
         np.empty(2 * degree, np.int64),
         np.empty(4 * degree, np.int64),
         np.empty(2 * degree, np.uint8),
+        np.empty(2 * degree, np.int64),
+        np.empty(2 * degree, np.int64),
     )
 
 
-@numba.njit(cache=True)
+@_kernel
 def _ring_sum(faces, head, nxt, v, other, quantised, total, nb):
     """Sum of the positions of v's distinct neighbours other than ``other`` into total;
     returns their number (``nb`` is scratch with room for twice v's corners)."""
@@ -219,7 +393,7 @@ def _ring_sum(faces, head, nxt, v, other, quantised, total, nb):
                 nb[m] = w
                 m += 1
         c = nxt[c]
-    nb[:m].sort()
+    _sort_prefix(nb, m)
     total[:] = 0
     count = 0
     for q in range(m):
@@ -230,25 +404,23 @@ def _ring_sum(faces, head, nxt, v, other, quantised, total, nb):
     return count
 
 
-@numba.njit(cache=True)
-def _span_prediction(faces, head, nxt, s, t, quantised, nb, prediction):
+@_kernel
+def _span_prediction(faces, head, nxt, s, t, quantised, nb, sums, prediction):
     """The predicted t - s_new once the split's connectivity is applied: each of s and t
     at the centroid of its ring (which holds the other), solved for both. With A the
     other neighbours of t (a of them) and B those of s (b): t (a + 1) = sum A + s and
     s (b + 1) = sum B + t, so t = (sum A (b + 1) + sum B) / d and s = (sum B (a + 1) +
     sum A) / d, d = (a + 1)(b + 1) - 1, each floored. Zero when a or b is 0 or over
-    SPAN_RING_LIMIT."""
-    sum_a = np.zeros(3, np.int64)
-    sum_b = np.zeros(3, np.int64)
-    a = _ring_sum(faces, head, nxt, t, s, quantised, sum_a, nb)
-    b = _ring_sum(faces, head, nxt, s, t, quantised, sum_b, nb)
+    SPAN_RING_LIMIT. ``sums`` is (2, 3) scratch."""
+    a = _ring_sum(faces, head, nxt, t, s, quantised, sums[0], nb)
+    b = _ring_sum(faces, head, nxt, s, t, quantised, sums[1], nb)
     prediction[:] = 0
     if a == 0 or b == 0 or a > SPAN_RING_LIMIT or b > SPAN_RING_LIMIT:
         return
     den = (a + 1) * (b + 1) - 1
     for d in range(3):
-        pt = (sum_a[d] * (b + 1) + sum_b[d]) // den
-        ps = (sum_b[d] * (a + 1) + sum_a[d]) // den
+        pt = (sums[0, d] * (b + 1) + sums[1, d]) // den
+        ps = (sums[1, d] * (a + 1) + sums[0, d]) // den
         prediction[d] = pt - ps
 
 
@@ -277,6 +449,207 @@ def _grow(array, need):
     return grown
 
 
+@_kernel
+def _bit_length(value):
+    value = abs(value)
+    n = 0
+    while value:
+        n += 1
+        value >>= 1
+    return n
+
+
+@_kernel
+def _sign(value):
+    """Context of a sign: 0 for 0, 1 for positive, 2 for negative."""
+    return 1 if value > 0 else (2 if value < 0 else 0)
+
+
+@_kernel
+def _shift_to(values, bits):
+    """Shift the three values right (floor) until the largest magnitude has at most
+    ``bits`` bits."""
+    big = max(abs(values[0]), abs(values[1]), abs(values[2]))
+    shift = max(0, _bit_length(big) - bits)
+    for d in range(3):
+        values[d] >>= shift
+
+
+@_kernel
+def _round_div(num, den):
+    """num / den rounded to nearest (halves up), den != 0."""
+    if den < 0:
+        num = -num
+        den = -den
+    return (2 * num + den) // (2 * den)
+
+
+@_kernel
+def _dominant(values):
+    """Index of the largest magnitude of the three (the first on ties)."""
+    k = 0
+    for d in range(1, 3):
+        if abs(values[d]) > abs(values[k]):
+            k = d
+    return k
+
+
+@_kernel
+def _ring_shape(faces, quantised, s, cs, nc, nb, nn, context, work):
+    """What the positions' contexts need of s's ring before the split, into context:
+    nn, nc, the spread per axis (mean |Q[w, d] - Q[s, d]| over the neighbours w, 0
+    without any), the ring's normal (sum over s's corners of the cross product of the two
+    other corners' offsets from s, offsets shifted to _DIFF_BITS bits, the sum to
+    _NORMAL_BITS) and the sign of the curvature along it (sum of the offsets, shifted to
+    _LAPLACE_BITS bits, dotted with the normal). ``work`` is (3,) scratch."""
+    context[_NN] = nn
+    context[_NC] = nc
+    big = 0
+    for d in range(3):
+        context[_SPREAD + d] = 0
+        work[d] = 0
+    for q in range(nn):
+        for d in range(3):
+            offset = quantised[nb[q], d] - quantised[s, d]
+            work[d] += offset
+            context[_SPREAD + d] += abs(offset)
+            big = max(big, abs(offset))
+    for d in range(3):
+        context[_SPREAD + d] = context[_SPREAD + d] // nn if nn else 0
+    _shift_to(work, _LAPLACE_BITS)
+    shift = max(0, _bit_length(big) - _DIFF_BITS)
+    nx = 0
+    ny = 0
+    nz = 0
+    sx = quantised[s, 0]
+    sy = quantised[s, 1]
+    sz = quantised[s, 2]
+    for q in range(nc):
+        f = cs[q] // 3
+        j = cs[q] % 3
+        u = faces[f, (j + 1) % 3]
+        w = faces[f, (j + 2) % 3]
+        ux = (quantised[u, 0] - sx) >> shift
+        uy = (quantised[u, 1] - sy) >> shift
+        uz = (quantised[u, 2] - sz) >> shift
+        wx = (quantised[w, 0] - sx) >> shift
+        wy = (quantised[w, 1] - sy) >> shift
+        wz = (quantised[w, 2] - sz) >> shift
+        nx += uy * wz - uz * wy
+        ny += uz * wx - ux * wz
+        nz += ux * wy - uy * wx
+    bulge = 0
+    context[_NORMAL] = nx
+    context[_NORMAL + 1] = ny
+    context[_NORMAL + 2] = nz
+    _shift_to(context[_NORMAL : _NORMAL + 3], _NORMAL_BITS)
+    for d in range(3):
+        bulge += work[d] * context[_NORMAL + d]
+    context[_BULGE] = _sign(bulge)
+
+
+@_kernel
+def _span_axes(context, axes):
+    """The order in which position_span codes the axes into axes: the two others, then
+    the normal's dominant one (whose value is predicted from the plane of the ring);
+    returns whether there is such a plane (a nonzero normal), else 0, 1, 2."""
+    normal = context[_NORMAL : _NORMAL + 3]
+    k = _dominant(normal)
+    if normal[k] == 0:
+        axes[0], axes[1], axes[2] = 0, 1, 2
+        return False
+    axes[0] = 1 if k == 0 else 0
+    axes[1] = 1 if k == 2 else 2
+    axes[2] = k
+    return True
+
+
+@_kernel
+def _span_slots(context, plane, axes, n_known, edge, prediction, slots):
+    """Context slots (magnitude block, sign slot) of the n_known-th span value into
+    slots, and the value it is coded against (edge holds the axes already known)."""
+    d = axes[n_known]
+    row = min(_bit_length(context[_SPREAD + d]), _ROWS - 1)
+    if plane and n_known == 2:
+        i, j = axes[0], axes[1]
+        normal = context[_NORMAL : _NORMAL + 3]
+        slots[0] = _NORMAL_SLOTS + row * _IS
+        slots[1] = slots[0] + _IS - 1
+        return _round_div(-(normal[i] * edge[i] + normal[j] * edge[j]), normal[d])
+    slots[0] = _SPAN_SLOTS + row * _IS
+    slots[1] = _SPAN_SIGN_SLOTS + _sign(prediction[d])
+    return prediction[d]
+
+
+@_kernel
+def _mid_frame(context, edge, axes, work):
+    """The frame position_mid codes in: axes[0] the axis of the edge's largest component
+    other than axes[2], axes[2] the dominant axis of b = e x normal, axes[1] the last;
+    work holds b shifted to _NORMAL_BITS bits. Returns False when there is no frame
+    (a zero normal, or e along it): then the axes are 0, 1, 2."""
+    normal = context[_NORMAL : _NORMAL + 3]
+    work[0] = edge[1] * normal[2] - edge[2] * normal[1]
+    work[1] = edge[2] * normal[0] - edge[0] * normal[2]
+    work[2] = edge[0] * normal[1] - edge[1] * normal[0]
+    k = _dominant(work)
+    if work[k] == 0:
+        axes[0], axes[1], axes[2] = 0, 1, 2
+        return False
+    _shift_to(work, _NORMAL_BITS)
+    a = 1 if k == 0 else 0
+    b = 1 if k == 2 else 2
+    if abs(edge[b]) > abs(edge[a]):
+        a, b = b, a
+    axes[0], axes[1], axes[2] = a, b, k
+    return True
+
+
+@_kernel
+def _mid_slots(context, framed, axes, n_known, edge, binormal, reduced, mid, slots):
+    """Context slots of the n_known-th mid value into slots, and the value it is coded
+    against: in the frame, the second axis against the first scaled along e (``reduced``
+    is e shifted to _NORMAL_BITS bits), the third against the plane of e and the normal
+    (mid holds the values already known)."""
+    d = axes[n_known]
+    if not framed:
+        slots[0] = _MID_SLOTS + min(_bit_length(edge[d]), _ROWS - 1) * _IS
+        slots[1] = slots[0] + _IS - 1
+        return 0
+    a, b = axes[0], axes[1]
+    normal = context[_NORMAL : _NORMAL + 3]
+    bulge = 1 if context[_BULGE] == 1 else (-1 if context[_BULGE] == 2 else 0)
+    length = min(_bit_length(abs(edge[0]) + abs(edge[1]) + abs(edge[2])), _ROWS - 1)
+    if n_known == 0:
+        slots[0] = _MID1_SLOTS + min(_bit_length(edge[a]), _ROWS - 1) * _IS
+        slots[1] = _MID_SIGN_SLOTS + _sign(bulge * normal[a])
+        return 0
+    if n_known == 1:
+        slots[0] = _MID2_SLOTS + length * _IS
+        cross = normal[b] * reduced[a] - normal[a] * reduced[b]
+        slots[1] = _MID_SIGN_SLOTS + 3 + _sign(bulge * _sign_of(cross) * _sign_of(reduced[a]))
+        if reduced[a] == 0:
+            return 0
+        return _round_div(mid[a] * reduced[b], reduced[a])
+    slots[0] = _MID3_SLOTS + length * _IS
+    slots[1] = slots[0] + _IS - 1
+    return _round_div(-(binormal[a] * mid[a] + binormal[b] * mid[b]), binormal[d])
+
+
+@_kernel
+def _sign_of(value):
+    return 1 if value > 0 else (-1 if value < 0 else 0)
+
+
+@_kernel
+def _third_row(nn):
+    return _THIRD_SLOTS + min(nn, 16) * 8
+
+
+@_kernel
+def _step_row(walk_length):
+    return _STEP_SLOTS + min(walk_length, _STEP_ROWS - 1) * _IS
+
+
 @numba.njit(cache=True)
 def encode_connectivity(
     faces,
@@ -291,30 +664,37 @@ def encode_connectivity(
     relabel_faces,
     quantised,
     split_quantised,
-    mid,
-    span,
+    positions,
+    position_slots,
+    split_context,
 ):
     """Code splits n_from.. against the state (faces[:faces_from], head, nxt), which is
     advanced to the level after the last split (faces must have room for the new faces).
+    split_context (K, SPLIT_CONTEXT) receives what ``code_splits`` needs of the state.
 
     Positions: ``quantised`` (>= n_to, 3) int64 holds the level's grid positions and is
-    advanced too; split_quantised (K, 2, 3) are the new s and t; written out per split:
-    mid[i] = floor((s_new + t) / 2) - old s (the quadric optimum lies near the middle of
-    the edge it collapsed) and span[i] = t - s_new - ``_span_prediction``.
+    advanced too; split_quantised (K, 2, 3) are the new s and t. Per split, positions[i]
+    (POSITION_SYMBOLS values) receives the position symbols in coding order and
+    position_slots[i] (POSITION_SYMBOLS, 2) their contexts (``_span_slots``,
+    ``_mid_slots``; a mid value not coded has slot -1).
 
-    Returns (codes uint8, thirds uint8, backs int64, masks uint8, status): status is
-    NO_CORNER if a relabelled face has no corner s (inconsistent splits), else 0.
+    Returns (codes uint8, thirds int64, steps int64, walks int64, backs int64, masks
+    uint8, status). Per face of code 0-5: thirds its index in nb or ESCAPE (-1 when the
+    walk gives it), steps its walk step (-1 when it is not the second wing or there is
+    no walk), walks the walk's length. masks: per corner of cs, bit 0 relabelled, bit 1
+    predicted. status is NO_CORNER if a relabelled face has no corner s (inconsistent
+    splits), else 0.
     """
-    prediction = np.zeros(3, np.int64)
     k = split_vertex.shape[0]
     n_new = new_faces.shape[0]
     codes = np.empty(n_new, np.uint8)
-    thirds = np.empty(n_new, np.uint8)
+    thirds = np.empty(n_new, np.int64)
+    steps = np.empty(n_new, np.int64)
+    walks = np.empty(n_new, np.int64)
     backs = np.empty(3 * n_new, np.int64)
-    masks = np.zeros(max(16, k), np.uint8)
-    cs = np.empty(16, np.int64)
-    nb = np.empty(32, np.int64)
-    mark = np.empty(16, np.uint8)
+    masks = np.zeros(max(16, 6 * k), np.uint8)
+    cs, nb, mark, ys, keys, sums, vectors, slots = _scratch_start()
+    prediction, work, binormal, edge, mid, axes = vectors
     n_third = 0
     n_back = 0
     n_mask = 0
@@ -323,10 +703,15 @@ def encode_connectivity(
     for i in range(k):
         s = split_vertex[i]
         t = n_from + i
-        cs, nb, mark = _scratch(head, nxt, s, cs, nb, mark)
+        cs, nb, mark, ys, keys = _scratch(head, nxt, s, cs, nb, mark, ys, keys)
         nc, nn = _gather(faces, head, nxt, s, cs, nb)
+        keys[nc] = -1  # not keyed for this split yet
+        context = split_context[i]
+        _ring_shape(faces, quantised, s, cs, nc, nb, nn, context, work)
         xl = -1
         xr = -1
+        first_forward = False
+        walk_length = -1  # not walked yet
         for q in range(new, new + new_face_counts[i]):
             code = EXPLICIT
             third = 0
@@ -347,24 +732,43 @@ def encode_connectivity(
                     backs[n_back] = t - new_faces[q, r]
                     n_back += 1
                 continue
-            if code < 3 and xl < 0:
+            forward = code < 3
+            second = xl >= 0 or xr >= 0
+            second = second and walk_length < 0 and forward != first_forward
+            if not (xl >= 0 or xr >= 0):
+                first_forward = forward
+            steps[n_third] = -1
+            walks[n_third] = 0
+            if second:
+                start = xl if xl >= 0 else xr
+                walk_length = _walk(faces, s, cs, nc, start, first_forward, start, mark, ys, keys)
+                walks[n_third] = walk_length
+                if walk_length > 0:
+                    step = walk_length
+                    for q2 in range(walk_length):
+                        if ys[q2] == third:
+                            step = q2
+                            break
+                    steps[n_third] = step
+            if forward and xl < 0:
                 xl = third
-            if code >= 3 and xr < 0:
+            if not forward and xr < 0:
                 xr = third
-            index = _find(nb, nn, third)
-            if 0 <= index < ESCAPE:
-                thirds[n_third] = index
+            if steps[n_third] >= 0 and steps[n_third] < walks[n_third]:
+                thirds[n_third] = -1
             else:
-                thirds[n_third] = ESCAPE
-                backs[n_back] = t - third
-                n_back += 1
+                index = _find(nb, nn, third)
+                if 0 <= index < ESCAPE:
+                    thirds[n_third] = index
+                else:
+                    thirds[n_third] = ESCAPE
+                    backs[n_back] = t - third
+                    n_back += 1
             n_third += 1
-        _predict(faces, s, cs, nc, xl, xr, mark)
-        n_bytes = (nc + 7) // 8
-        masks = _grow(masks, n_mask + n_bytes)
+        _predict(faces, s, cs, nc, xl, xr, mark, ys, keys)
+        masks = _grow(masks, n_mask + nc)
         for q in range(nc):
-            if mark[q]:
-                masks[n_mask + q // 8] ^= np.uint8(1 << (q % 8))
+            masks[n_mask + q] = 2 * mark[q]
         for r in range(relabel_offsets[i], relabel_offsets[i + 1]):
             f = relabel_faces[r]
             hit = -1
@@ -373,26 +777,171 @@ def encode_connectivity(
                     hit = 3 * f + j
                     break
             if hit < 0:
-                return codes, thirds[:n_third], backs[:n_back], masks[:n_mask], NO_CORNER
+                return codes, thirds, steps, walks, backs, masks, NO_CORNER
             q = _find(cs, nc, hit)
-            masks[n_mask + q // 8] ^= np.uint8(1 << (q % 8))
+            masks[n_mask + q] |= 1
             _relabel(faces, head, nxt, f, s, t)
-        n_mask += n_bytes
+        n_mask += nc
         for q in range(new, new + new_face_counts[i]):
             _append_face(faces, head, nxt, face, new_faces[q, 0], new_faces[q, 1], new_faces[q, 2])
             face += 1
         new += new_face_counts[i]
         nb = _ring_room(head, nxt, s, t, nb)
-        _span_prediction(faces, head, nxt, s, t, quantised, nb, prediction)
+        _span_prediction(faces, head, nxt, s, t, quantised, nb, sums, prediction)
         for d in range(3):
-            old = quantised[s, d]
+            edge[d] = split_quantised[i, 1, d] - split_quantised[i, 0, d]
+        plane = _span_axes(context, axes)
+        for n_known in range(3):
+            against = _span_slots(context, plane, axes, n_known, edge, prediction, slots)
+            positions[i, n_known] = edge[axes[n_known]] - against
+            position_slots[i, n_known, 0] = slots[0]
+            position_slots[i, n_known, 1] = slots[1]
+        stays_s = True
+        stays_t = True
+        for d in range(3):
+            stays_s &= split_quantised[i, 0, d] == quantised[s, d]
+            stays_t &= split_quantised[i, 1, d] == quantised[s, d]
+        placement = 1 if stays_s else (2 if stays_t else 0)
+        positions[i, _PLACEMENT] = placement
+        for d in range(3):
             a = split_quantised[i, 0, d]
             b = split_quantised[i, 1, d]
-            mid[i, d] = ((a + b) >> 1) - old
-            span[i, d] = b - a - prediction[d]
-            quantised[s, d] = a
-            quantised[t, d] = b
-    return codes, thirds[:n_third], backs[:n_back], masks[:n_mask], 0
+            mid[d] = ((a + b) >> 1) - quantised[s, d]
+        framed = _mid_frame(context, edge, axes, binormal)
+        for d in range(3):
+            work[d] = edge[d]
+        _shift_to(work, _NORMAL_BITS)
+        for n_known in range(3):
+            at = _PLACEMENT + 1 + n_known
+            if placement:
+                positions[i, at] = 0
+                position_slots[i, at, 0] = -1
+                continue
+            against = _mid_slots(context, framed, axes, n_known, edge, binormal, work, mid, slots)
+            positions[i, at] = mid[axes[n_known]] - against
+            position_slots[i, at, 0] = slots[0]
+            position_slots[i, at, 1] = slots[1]
+        for d in range(3):
+            quantised[s, d] = split_quantised[i, 0, d]
+            quantised[t, d] = split_quantised[i, 1, d]
+    return (
+        codes,
+        thirds[:n_third],
+        steps[:n_third],
+        walks[:n_third],
+        backs[:n_back],
+        masks[:n_mask],
+        0,
+    )
+
+
+@_kernel
+def _code_s(enc, out, probs, s, t):
+    bucket = (S_BUCKETS * s) // t
+    rc.encode_tree(enc, out, probs, _S_BUCKET_SLOTS, _S_BUCKET_BITS, bucket)
+    lo = (bucket * t + S_BUCKETS - 1) // S_BUCKETS
+    hi = ((bucket + 1) * t + S_BUCKETS - 1) // S_BUCKETS
+    rc.encode_uniform(enc, out, probs, _S_SLOTS, s - lo, hi - lo)
+
+
+@_kernel
+def code_splits(
+    enc,
+    out,
+    probs,
+    fields,
+    n_from,
+    split_back,
+    new_face_counts,
+    codes,
+    thirds,
+    steps,
+    walks,
+    backs,
+    masks,
+    positions,
+    position_slots,
+    split_context,
+):
+    """Range-code what ``encode_connectivity`` produced, split by split, in the order
+    ``decode_connectivity`` reads it: s, the face count, each face's code and third corner
+    (or corners_back), the relabel mask, position_span, the placement, position_mid. Only
+    the fields in the ``fields`` flags are coded (all of them for a frame)."""
+    at_face = 0
+    at_third = 0
+    at_back = 0
+    at_mask = 0
+    for i in range(split_back.shape[0]):
+        t = n_from + i
+        context = split_context[i]
+        if fields & FIELD_SPLIT_BACK:
+            _code_s(enc, out, probs, t - split_back[i], t)
+        count = new_face_counts[i]
+        if fields & FIELD_FACE_COUNTS:
+            rc.encode_integer(enc, out, probs, _COUNT_SLOTS, count, False)
+        previous = 7
+        for _ in range(count):
+            code = codes[at_face]
+            at_face += 1
+            if fields & FIELD_FACE_CODES:
+                rc.encode_tree(enc, out, probs, _CODE_SLOTS + 8 * previous, 3, code)
+            previous = code
+            n_backs = 3 if code == EXPLICIT else 0
+            if code < EXPLICIT:
+                index = thirds[at_third]
+                step = steps[at_third]
+                walk_length = walks[at_third]
+                at_third += 1
+                n_backs = 1 if index == ESCAPE else 0
+                if fields & FIELD_THIRD_CORNERS:
+                    if step >= 0:
+                        rc.encode_integer(enc, out, probs, _step_row(walk_length), step, False)
+                    if index >= 0:
+                        rc.encode_bit(enc, out, probs, _ESCAPE_SLOT, index == ESCAPE)
+                        if index != ESCAPE:
+                            nn = min(context[_NN], ESCAPE)
+                            rc.encode_uniform(enc, out, probs, _third_row(nn), index, nn)
+            for _ in range(n_backs):
+                if fields & FIELD_CORNERS_BACK:
+                    rc.encode_integer(enc, out, probs, _BACK_SLOTS, backs[at_back], False)
+                at_back += 1
+        nc = context[_NC]
+        if fields & FIELD_RELABEL_MASKS and nc:
+            as_predicted = True
+            for q in range(nc):
+                as_predicted &= masks[at_mask + q] == 0 or masks[at_mask + q] == 3
+            rc.encode_bit(enc, out, probs, _MASK_SLOTS, not as_predicted)
+            if not as_predicted:
+                for q in range(nc):
+                    bit = masks[at_mask + q] & 1
+                    rc.encode_bit(enc, out, probs, _MASK_SLOTS + 1 + (masks[at_mask + q] >> 1), bit)
+        at_mask += nc
+        if fields & FIELD_POSITION_SPAN:
+            for n_known in range(3):
+                _code_value(enc, out, probs, positions[i, n_known], position_slots[i, n_known])
+        if fields & FIELD_POSITION_MID:
+            placement = positions[i, _PLACEMENT]
+            rc.encode_bit(enc, out, probs, _PLACE_SLOTS, placement != 0)
+            if placement:
+                rc.encode_bit(enc, out, probs, _PLACE_SLOTS + 1, placement == 2)
+            else:
+                for at in range(_PLACEMENT + 1, POSITION_SYMBOLS):
+                    _code_value(enc, out, probs, positions[i, at], position_slots[i, at])
+
+
+@_kernel
+def _code_value(enc, out, probs, value, slots):
+    rc.encode_integer(enc, out, probs, slots[0], abs(value), False)
+    if value != 0:
+        rc.encode_bit(enc, out, probs, slots[1], value < 0)
+
+
+@_kernel
+def _decode_value(dec, data, probs, slots):
+    magnitude = rc.decode_integer(dec, data, probs, slots[0], False)
+    if magnitude != 0 and rc.decode_bit(dec, data, probs, slots[1]):
+        return -magnitude
+    return magnitude
 
 
 @numba.njit(cache=True)
@@ -402,92 +951,114 @@ def decode_connectivity(
     head,
     nxt,
     n_from,
-    split_back,
-    new_face_counts,
-    codes,
-    thirds,
-    backs,
-    masks,
+    n_splits,
+    n_new_faces,
+    data,
     quantised,
-    mid,
-    span,
+    probs,
     born_faces,
+    face_counts,
 ):
-    """Inverse of ``encode_connectivity``: advances the state (faces must have room for
-    sum(new_face_counts) more faces, head and quantised for the new vertices). The new
-    faces as born (before later splits relabel them) go to born_faces (>= new faces, 3).
+    """Inverse of ``encode_connectivity`` + ``code_splits``: decodes n_splits splits from
+    the range-coded ``data`` (uint8) with the contexts ``probs`` (fresh, or as the
+    previous frame of the stream left them: they are updated) and advances the state
+    (faces must have room for n_new_faces more faces, head and quantised for the new
+    vertices). What the wedge side needs of the splits goes to born_faces
+    (>= n_new_faces, 3): the new faces as born, before later splits relabel them, and
+    face_counts (>= n_splits,): each split's new faces.
 
-    Returns (status, split_vertex, relabel_counts, relabel_faces): status 0 when every
-    field was consumed exactly and every index was in range, else a status code (the
-    state is then partly advanced and must be dropped).
+    Returns (status, split_vertex, relabel_counts, relabel_faces): status 0 when the
+    splits used every byte of data, exactly n_new_faces faces and only indices in range,
+    else a status code (the state is then partly advanced and must be dropped).
     """
-    k = split_back.shape[0]
-    prediction = np.zeros(3, np.int64)
+    k = n_splits
+    dec = rc.start_decoder(data, 0)
+    context = np.zeros(SPLIT_CONTEXT, np.int64)
     split_vertex = np.zeros(k, np.int32)
     relabel_counts = np.zeros(k, np.int64)
     relabel_faces = np.empty(max(16, 2 * k), np.int32)
-    cs = np.empty(16, np.int64)
-    nb = np.empty(32, np.int64)
-    mark = np.empty(16, np.uint8)
+    cs, nb, mark, ys, keys, sums, vectors, slots = _scratch_start()
+    prediction, work, binormal, edge, mid, axes = vectors
+    corner = np.zeros(3, np.int64)
     n_relabel = 0
-    at_code = 0
-    at_third = 0
-    at_back = 0
-    at_mask = 0
     face = faces_from
+    face_end = faces_from + n_new_faces
     for i in range(k):
-        t = n_from + i
-        back = np.int64(split_back[i])
-        if back < 1 or back > t:
-            return BAD_VERTEX, split_vertex, relabel_counts, relabel_faces[:n_relabel]
-        s = t - back
-        split_vertex[i] = s
-        cs, nb, mark = _scratch(head, nxt, s, cs, nb, mark)
-        nc, nn = _gather(faces, head, nxt, s, cs, nb)
-        count = np.int64(new_face_counts[i])
-        if at_code + count > codes.shape[0]:
+        if dec[rc.BROKEN]:
             return SHORT_DATA, split_vertex, relabel_counts, relabel_faces[:n_relabel]
+        t = n_from + i
+        if t < 1:
+            return BAD_VERTEX, split_vertex, relabel_counts, relabel_faces[:n_relabel]
+        bucket = rc.decode_tree(dec, data, probs, _S_BUCKET_SLOTS, _S_BUCKET_BITS)
+        lo = (bucket * t + S_BUCKETS - 1) // S_BUCKETS
+        hi = ((bucket + 1) * t + S_BUCKETS - 1) // S_BUCKETS
+        if hi <= lo:
+            return BAD_VERTEX, split_vertex, relabel_counts, relabel_faces[:n_relabel]
+        s = lo + rc.decode_uniform(dec, data, probs, _S_SLOTS, hi - lo)
+        split_vertex[i] = s
+        cs, nb, mark, ys, keys = _scratch(head, nxt, s, cs, nb, mark, ys, keys)
+        nc, nn = _gather(faces, head, nxt, s, cs, nb)
+        keys[nc] = -1  # not keyed for this split yet
+        _ring_shape(faces, quantised, s, cs, nc, nb, nn, context, work)
+        count = rc.decode_integer(dec, data, probs, _COUNT_SLOTS, False)
+        if count > face_end - face:
+            return BAD_COUNT, split_vertex, relabel_counts, relabel_faces[:n_relabel]
+        face_counts[i] = count
         xl = -1
         xr = -1
+        first_forward = False
+        walk_length = -1
         first_new = face
+        previous = 7
         for _ in range(count):
-            code = codes[at_code]
-            at_code += 1
-            corner = np.zeros(3, np.int64)
+            code = rc.decode_tree(dec, data, probs, _CODE_SLOTS + 8 * previous, 3)
+            previous = code
             if code == EXPLICIT:
-                if at_back + 3 > backs.shape[0]:
-                    return SHORT_DATA, split_vertex, relabel_counts, relabel_faces[:n_relabel]
                 for r in range(3):
-                    b = backs[at_back]
-                    at_back += 1
-                    if b < 0 or b > t:
+                    b = rc.decode_integer(dec, data, probs, _BACK_SLOTS, False)
+                    if b > t:
                         return BAD_BACK, split_vertex, relabel_counts, relabel_faces[:n_relabel]
                     corner[r] = t - b
             elif code < EXPLICIT:
-                if at_third >= thirds.shape[0]:
-                    return SHORT_DATA, split_vertex, relabel_counts, relabel_faces[:n_relabel]
-                index = thirds[at_third]
-                at_third += 1
-                if index == ESCAPE:
-                    if at_back >= backs.shape[0]:
-                        return SHORT_DATA, split_vertex, relabel_counts, relabel_faces[:n_relabel]
-                    b = backs[at_back]
-                    at_back += 1
-                    if b < 0 or b > t:
+                forward = code < 3
+                x = -1
+                if (xl >= 0 or xr >= 0) and walk_length < 0 and forward != first_forward:
+                    start = xl if xl >= 0 else xr
+                    walk_length = _walk(
+                        faces, s, cs, nc, start, first_forward, start, mark, ys, keys
+                    )
+                    if walk_length > 0:
+                        step = rc.decode_integer(dec, data, probs, _step_row(walk_length), False)
+                        if step > walk_length:
+                            return (
+                                BAD_THIRD,
+                                split_vertex,
+                                relabel_counts,
+                                relabel_faces[:n_relabel],
+                            )
+                        if step < walk_length:
+                            x = ys[step]
+                if not (xl >= 0 or xr >= 0):
+                    first_forward = forward
+                if x >= 0:
+                    pass
+                elif rc.decode_bit(dec, data, probs, _ESCAPE_SLOT):
+                    b = rc.decode_integer(dec, data, probs, _BACK_SLOTS, False)
+                    if b > t:
                         return BAD_BACK, split_vertex, relabel_counts, relabel_faces[:n_relabel]
                     x = t - b
-                elif index < nn:
-                    x = nb[index]
+                elif nn > 0:
+                    n_index = min(nn, ESCAPE)
+                    x = nb[rc.decode_uniform(dec, data, probs, _third_row(n_index), n_index)]
                 else:
                     return BAD_THIRD, split_vertex, relabel_counts, relabel_faces[:n_relabel]
                 r = code % 3
-                swapped = code >= 3
-                corner[r] = t if swapped else s
-                corner[(r + 1) % 3] = s if swapped else t
+                corner[r] = s if forward else t
+                corner[(r + 1) % 3] = t if forward else s
                 corner[(r + 2) % 3] = x
-                if not swapped and xl < 0:
+                if forward and xl < 0:
                     xl = x
-                if swapped and xr < 0:
+                if not forward and xr < 0:
                     xr = x
             else:
                 return BAD_CODE, split_vertex, relabel_counts, relabel_faces[:n_relabel]
@@ -496,16 +1067,10 @@ def decode_connectivity(
                 faces[face, j] = corner[j]
                 born_faces[face - faces_from, j] = corner[j]
             face += 1
-        _predict(faces, s, cs, nc, xl, xr, mark)
-        n_bytes = (nc + 7) // 8
-        if at_mask + n_bytes > masks.shape[0]:
-            return SHORT_DATA, split_vertex, relabel_counts, relabel_faces[:n_relabel]
-        for q in range(nc):
-            bit = (masks[at_mask + q // 8] >> (q % 8)) & 1
-            mark[q] ^= bit
-        if nc % 8 and masks[at_mask + n_bytes - 1] >> (nc % 8):
-            return BAD_MASK, split_vertex, relabel_counts, relabel_faces[:n_relabel]
-        at_mask += n_bytes
+        _predict(faces, s, cs, nc, xl, xr, mark, ys, keys)
+        if nc and rc.decode_bit(dec, data, probs, _MASK_SLOTS):
+            for q in range(nc):
+                mark[q] = rc.decode_bit(dec, data, probs, _MASK_SLOTS + 1 + mark[q])
         relabel_faces = _grow(relabel_faces, n_relabel + nc)
         for q in range(nc):
             if mark[q]:
@@ -522,17 +1087,40 @@ def decode_connectivity(
                 nxt[corner_id] = head[v]
                 head[v] = corner_id
         nb = _ring_room(head, nxt, s, t, nb)
-        _span_prediction(faces, head, nxt, s, t, quantised, nb, prediction)
+        _span_prediction(faces, head, nxt, s, t, quantised, nb, sums, prediction)
+        plane = _span_axes(context, axes)
+        for n_known in range(3):
+            against = _span_slots(context, plane, axes, n_known, edge, prediction, slots)
+            edge[axes[n_known]] = _decode_value(dec, data, probs, slots) + against
+        placement = 0
+        if rc.decode_bit(dec, data, probs, _PLACE_SLOTS):
+            placement = 1 + rc.decode_bit(dec, data, probs, _PLACE_SLOTS + 1)
+        if placement == 0:
+            framed = _mid_frame(context, edge, axes, binormal)
+            for d in range(3):
+                work[d] = edge[d]
+            _shift_to(work, _NORMAL_BITS)
+            for n_known in range(3):
+                against = _mid_slots(
+                    context, framed, axes, n_known, edge, binormal, work, mid, slots
+                )
+                mid[axes[n_known]] = _decode_value(dec, data, probs, slots) + against
         for d in range(3):
             old = quantised[s, d]
-            m = mid[i, d] + old
-            e = span[i, d] + prediction[d]
-            # a + b = 2m + (e & 1) and b - a = e
-            a = (2 * m + (e & 1) - e) >> 1
+            e = edge[d]
+            if placement == 1:
+                a = old
+            elif placement == 2:
+                a = old - e
+            else:
+                # a + b = 2 (old + mid) + (e & 1) and b - a = e
+                a = (2 * (old + mid[d]) + (e & 1) - e) >> 1
             quantised[s, d] = a
             quantised[t, d] = a + e
-    if at_code != codes.shape[0] or at_third != thirds.shape[0]:
+    if dec[rc.BROKEN]:
+        return SHORT_DATA, split_vertex, relabel_counts, relabel_faces[:n_relabel]
+    if dec[rc.POSITION] != data.shape[0]:
         return LONG_DATA, split_vertex, relabel_counts, relabel_faces[:n_relabel]
-    if at_back != backs.shape[0] or at_mask != masks.shape[0]:
-        return LONG_DATA, split_vertex, relabel_counts, relabel_faces[:n_relabel]
+    if face != face_end:
+        return BAD_COUNT, split_vertex, relabel_counts, relabel_faces[:n_relabel]
     return 0, split_vertex, relabel_counts, relabel_faces[:n_relabel]

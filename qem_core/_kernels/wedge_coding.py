@@ -30,6 +30,19 @@ Split i (s, t = n_from + i, W wedges before it, ``n_new`` new wedges W.. after):
   alone), one per *extra update* of a wedge outside ws (back-distance ``W - wedge``, then
   new minus old), one per new wedge (its value minus the old value of the wedge of ws
   whose moved corners took it, else of ws[0], else 0).
+
+The fields are range-coded (``range_coder.py``, contexts of their own, carried from
+frame to frame as the splits' are) by ``code_wedge_fields`` / ``decode_wedge_fields``,
+one field after the other:
+
+- counts, row by row (new wedges of every split, then extra updates, then extra
+  relabels): unsigned Exp-Golomb, a context block per row;
+- symbols: "is it 0?" with a context per class of the previous symbol (0, 1..254,
+  ESCAPE), then symbol - 1 as an 8-bit tree;
+- backs: unsigned Exp-Golomb;
+- value rows, row by row, column by column: signed Exp-Golomb, a context block per
+  (column, min(bit length of the same column of the previous row, 7), min(bit length
+  of the previous column of this row, 3)) (the first row and column count 0).
 """
 
 from typing import NamedTuple
@@ -37,11 +50,13 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
+from . import range_coder as rc
 from .stream_coding import (
     LONG_DATA,
     NO_CORNER,
     SHORT_DATA,
     _append_face,
+    _bit_length,
     _distinct_sorted,
     _find,
     _grow,
@@ -52,13 +67,111 @@ ESCAPE = 255
 # Symbols 1..254 name candidates 0..253 of a corner's list; later ones are escaped.
 LISTED = 254
 
-# Decoder status codes, after stream_coding's 1..8 (0: fine); stream.py words them.
-BAD_WEDGE = 9
-BAD_WEDGE_CORNER = 10
-BAD_VALUE = 11
+# Decoder status codes, after stream_coding's 1..9 (0: fine); stream.py words them.
+BAD_WEDGE = 10
+BAD_WEDGE_CORNER = 11
+BAD_VALUE = 12
 
 # Cursors into the fields, an int64 array advanced as they are read or written.
 AT_SYMBOL, AT_BACK, AT_ROW = 0, 1, 2
+
+
+# Context slots of the coded fields (one probability array, ``wedge_context_slots``).
+_COUNT_SLOTS = 0  # 3 integer blocks, a block per counts row
+_ZERO_SLOTS = _COUNT_SLOTS + 3 * rc.INTEGER_SLOTS  # symbol is 0? per previous class
+_SYMBOL_SLOTS = _ZERO_SLOTS + 3  # symbol - 1: 8-bit tree
+_BACK_SLOTS = _SYMBOL_SLOTS + 255  # backs: integer
+_ROW_SLOTS = _BACK_SLOTS + rc.INTEGER_SLOTS  # values: a block per (column, classes)
+_ROW_CLASSES = 8  # bit length of the previous row's value in the column, capped
+_COLUMN_CLASSES = 4  # bit length of the previous column's value in the row, capped
+
+
+@numba.njit(cache=True)
+def wedge_context_slots(width):
+    """The probability slots the wedge fields of ``width`` columns use."""
+    return _ROW_SLOTS + width * _ROW_CLASSES * _COLUMN_CLASSES * rc.INTEGER_SLOTS
+
+
+@numba.njit(cache=True)
+def _symbol_class(symbol):
+    return 0 if symbol == 0 else (2 if symbol == ESCAPE else 1)
+
+
+@numba.njit(cache=True)
+def _row_context(rows, r, d):
+    """The context block of value rows[r, d] (module docstring)."""
+    above = _bit_length(rows[r - 1, d]) if r > 0 else 0
+    left = _bit_length(rows[r, d - 1]) if d > 0 else 0
+    block = (d * _ROW_CLASSES + min(above, _ROW_CLASSES - 1)) * _COLUMN_CLASSES
+    return _ROW_SLOTS + (block + min(left, _COLUMN_CLASSES - 1)) * rc.INTEGER_SLOTS
+
+
+@numba.njit(cache=True)
+def code_wedge_fields(enc, out, probs, counts, symbols, backs, rows):
+    """Range-code a frame's wedge fields (counts (3, K), symbols, backs, rows (R, k))
+    in the order ``decode_wedge_fields`` reads them."""
+    for row in range(3):
+        for i in range(counts.shape[1]):
+            rc.encode_integer(
+                enc, out, probs, _COUNT_SLOTS + row * rc.INTEGER_SLOTS, counts[row, i], False
+            )
+    previous = 0
+    for q in range(symbols.shape[0]):
+        symbol = np.int64(symbols[q])
+        rc.encode_bit(enc, out, probs, _ZERO_SLOTS + _symbol_class(previous), symbol != 0)
+        if symbol != 0:
+            rc.encode_tree(enc, out, probs, _SYMBOL_SLOTS, 8, symbol - 1)
+        previous = symbol
+    for q in range(backs.shape[0]):
+        rc.encode_integer(enc, out, probs, _BACK_SLOTS, backs[q], False)
+    for r in range(rows.shape[0]):
+        for d in range(rows.shape[1]):
+            rc.encode_integer(enc, out, probs, _row_context(rows, r, d), rows[r, d], True)
+
+
+@numba.njit(cache=True)
+def decode_wedge_fields(data, k, n_symbols, n_backs, n_rows, width, probs):
+    """Inverse of ``code_wedge_fields`` over all of ``data`` (the caller bounds the
+    counts first) with the contexts ``probs`` (``wedge_context_slots(width)`` of them,
+    fresh or as the stream's previous frame left them: they are updated). Returns
+    (status, counts, symbols, backs, rows): status SHORT_DATA if the fields need more
+    bytes than data has (or data is no coder output), LONG_DATA if they leave bytes
+    unread, else 0."""
+    dec = rc.start_decoder(data, 0)
+    counts = np.zeros((3, k), np.int64)
+    symbols = np.zeros(n_symbols, np.uint8)
+    backs = np.zeros(n_backs, np.int64)
+    rows = np.zeros((n_rows, width), np.int64)
+    for row in range(3):
+        for i in range(k):
+            counts[row, i] = rc.decode_integer(
+                dec, data, probs, _COUNT_SLOTS + row * rc.INTEGER_SLOTS, False
+            )
+        if dec[rc.BROKEN]:
+            return SHORT_DATA, counts, symbols, backs, rows
+    previous = 0
+    for q in range(n_symbols):
+        symbol = 0
+        if rc.decode_bit(dec, data, probs, _ZERO_SLOTS + _symbol_class(previous)):
+            symbol = 1 + rc.decode_tree(dec, data, probs, _SYMBOL_SLOTS, 8)
+        symbols[q] = symbol
+        previous = symbol
+        if dec[rc.BROKEN]:
+            return SHORT_DATA, counts, symbols, backs, rows
+    for q in range(n_backs):
+        backs[q] = rc.decode_integer(dec, data, probs, _BACK_SLOTS, False)
+        if dec[rc.BROKEN]:
+            return SHORT_DATA, counts, symbols, backs, rows
+    for r in range(n_rows):
+        for d in range(width):
+            rows[r, d] = rc.decode_integer(dec, data, probs, _row_context(rows, r, d), True)
+        if dec[rc.BROKEN]:
+            return SHORT_DATA, counts, symbols, backs, rows
+    if dec[rc.BROKEN]:
+        return SHORT_DATA, counts, symbols, backs, rows
+    if dec[rc.POSITION] != data.shape[0]:
+        return LONG_DATA, counts, symbols, backs, rows
+    return 0, counts, symbols, backs, rows
 
 
 class WedgeLevel(NamedTuple):

@@ -19,6 +19,7 @@ The browser test skips only where no Chromium can be found; ``.ci/run`` installs
 from __future__ import annotations
 
 import base64
+import functools
 import hashlib
 import json
 import os
@@ -26,9 +27,10 @@ import shutil
 import struct
 import subprocess
 import zlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import NamedTuple
 
 import httpx
 import msgpack
@@ -43,10 +45,12 @@ from qem_core.stream import (
     encode_split_frames,
     grid_for,
     iter_frames,
+    new_wedge_contexts,
     quantised_wedges,
+    split_frame_symbols,
 )
-from tests.tiny_meshes import icosphere
-from tests.wedge_meshes import seamed_mesh
+from tests.tiny_meshes import bumpy_grid, degenerate_ring_pm, grid, icosphere, perforated_icosphere
+from tests.wedge_meshes import seamed_mesh, wedge_arrays, with_wedge_arrays
 
 from .conftest import REPO, shared_mesh
 
@@ -156,7 +160,7 @@ import { readFileSync } from "node:fs";
 import { createHash } from "node:crypto";
 import { pathToFileURL } from "node:url";
 const [refinePath, dir] = process.argv.slice(2);
-const { FrameCutter, ProgressiveLevels, decodeBaseMesh, decodeFrame, inflate } =
+const { FrameCutter, ProgressiveLevels, decodeBaseMesh, decodeFrame } =
   await import(pathToFileURL(refinePath).href);
 const plan = JSON.parse(readFileSync(`${dir}/plan.json`, "utf8"));
 const base = decodeBaseMesh(readFileSync(`${dir}/base.msgpack`));
@@ -166,13 +170,7 @@ const cutter = new FrameCutter();
 try {
   for (let at = 0, size = 1; at < stream.length; at += size, size = 2 * size + 1) {
     for (const payload of cutter.push(stream.subarray(at, at + size))) {
-      let inflated;
-      try {
-        inflated = await inflate(payload);
-      } catch (error) {
-        throw new Error(`does not inflate: ${error.message}`);
-      }
-      levels.addFrame(decodeFrame(inflated));
+      levels.addFrame(decodeFrame(payload));
     }
   }
   cutter.finish();
@@ -275,8 +273,8 @@ def hand_drawn_pm() -> ProgressiveMesh:
 def test_refine_js_decodes_every_face_code_exactly(tmp_path):
     pm = hand_drawn_pm()
     codes = set()
-    for frame in encode_split_frames(pm, pm.n_base, pm.n_full):
-        codes |= set(msgpack.unpackb(zlib.decompress(frame[4:]))["face_codes"])
+    for symbols in split_frame_symbols(pm, pm.n_base, pm.n_full):
+        codes |= set(symbols.face_codes.tolist())
     assert codes == {1, 3, 5, 6}  # the sketch does what it says
     visit = [6, 3, 5, 4, 6]
     levels = run_refine_js(tmp_path, pm, visit)
@@ -293,6 +291,36 @@ def test_refine_js_moves_down_and_up_through_every_level(tmp_path):
     assert len(levels) == pm.n_full - pm.n_base + 1
     for n in down:
         assert levels[n] == {"level": n, "faces": pm.n_faces(n), "digest": pm_digest(pm, n)}
+
+
+def test_refine_js_takes_the_rarer_coding_paths_exactly(tmp_path):
+    """A ring without a normal, an escaped third corner, t left at s's old position, a
+    relabel off the predicted fan (tests.tiny_meshes.degenerate_ring_pm): every level."""
+    pm = degenerate_ring_pm()
+    visit = [pm.n_full, pm.n_base, pm.n_base + 1, pm.n_full]
+    levels = run_refine_js(tmp_path, pm, visit)
+    for n in visit:
+        assert levels[n] == {"level": n, "faces": pm.n_faces(n), "digest": pm_digest(pm, n)}
+
+
+@pytest.mark.parametrize(
+    "mesh",
+    [grid(5), bumpy_grid(6, seed=1), perforated_icosphere(2, holes=3, seed=7)],
+    ids=["flat_grid", "bumpy_grid", "perforated_icosphere"],
+)
+def test_refine_js_decodes_built_meshes_exactly(tmp_path, mesh):
+    """Ends that stayed (the flat grid), second wings off the walk and relabels off the
+    predicted fan (the bumpy grid, the open icosphere), in frames of two splits and in
+    the stream's own frames: every level equals lod(n)."""
+    pm = qem_core.build(*mesh)
+    visit = list(range(pm.n_full, pm.n_base - 1, -1))
+    for splits_per_frame in (2, None):
+        stream = None
+        if splits_per_frame is None:
+            stream = b"".join(encode_split_frames(pm, pm.n_base, pm.n_full))
+        levels = run_refine_js(tmp_path, pm, visit, stream=stream)
+        for n in visit:
+            assert levels[n] == {"level": n, "faces": pm.n_faces(n), "digest": pm_digest(pm, n)}
 
 
 @pytest.fixture(scope="module")
@@ -332,9 +360,37 @@ def frame_of(payload: bytes) -> bytes:
     return struct.pack("<I", len(payload)) + payload
 
 
+def sealed(body: bytes) -> bytes:
+    """A frame of these msgpack bytes with their right CRC-32 (qem_core.stream)."""
+    return frame_of(body + struct.pack("<I", zlib.crc32(body)))
+
+
+def _continuing(frame: bytes) -> bytes:
+    """The frame claiming to continue a stream (no grid, the previous frame's contexts)."""
+    body = msgpack.unpackb(frame[4:-4])
+    body = {k: v for k, v in body.items() if k not in ("bits", "grid")}
+    return sealed(msgpack.packb({**body, "continues": True}))
+
+
+def _truncated_splits(frame: bytes) -> bytes:
+    """The frame with the last byte of its range-coded splits cut off."""
+    body = msgpack.unpackb(frame[4:-4])
+    return sealed(msgpack.packb({**body, "splits": body["splits"][:-1]}))
+
+
 def _rewritten(frame: bytes, change) -> bytes:
-    body = msgpack.unpackb(zlib.decompress(frame[4:]))
-    return frame_of(zlib.compress(msgpack.packb(change(body))))
+    return sealed(msgpack.packb(change(msgpack.unpackb(frame[4:-4]))))
+
+
+class _WedgeArraysChanged(NamedTuple):
+    """A change of a frame's decoded wedge arrays (coded again with the contexts the
+    stream's previous frame left)."""
+
+    change: Callable
+
+
+def _wedge_arrays_changed(change):
+    return _WedgeArraysChanged(change)
 
 
 @pytest.mark.parametrize(
@@ -346,28 +402,51 @@ def _rewritten(frame: bytes, change) -> bytes:
         ),
         (lambda body: {**body, "wedges_from": 1}, "WireFormatError: frame refines 1 wedges"),
         (
-            lambda body: {**body, "wedge_corners": b"\xfe" * len(body["wedge_corners"])},
+            _wedge_arrays_changed(
+                lambda w: w._replace(symbols=np.full_like(w.symbols, 0xFE))
+            ),
             "WireFormatError: split frame: a corner or update names a wedge",
         ),
         (
-            lambda body: {**body, "wedge_values": b"\xff" * len(body["wedge_values"])},
+            _wedge_arrays_changed(lambda w: w._replace(rows=np.full_like(w.rows, 5000))),
             "WireFormatError: split frame: a wedge value leaves its grid",
         ),
         (
-            lambda body: {**body, "wedge_corners": body["wedge_corners"] + b"\x00"},
+            _wedge_arrays_changed(
+                lambda w: w._replace(symbols=np.append(w.symbols, np.uint8(0)))
+            ),
             "WireFormatError: split frame: a field holds more than the splits use",
+        ),
+        (
+            lambda body: {**body, "wedges": body["wedges"][:-1]},
+            "WireFormatError: split frame: the coded wedges end early",
+        ),
+        (
+            lambda body: {**body, "wedges": body["wedges"] + b"\x00"},
+            "WireFormatError: split frame: the coded wedges hold bytes past",
+        ),
+        (
+            lambda body: {**body, "n_wedge_symbols": 10**9},
+            "WireFormatError: split frame: the coded wedges (",
         ),
         (
             lambda body: {**body, "wedge_grid": {**body["wedge_grid"], "bits": [11]}},
             "WireFormatError: the split stream's wedge grid is not the base mesh's",
         ),
     ],
-    ids=["no-wedges", "other-wedge-count", "no-such-wedge", "off-grid", "long", "other-grid"],
-)
+    ids=[
+        "no-wedges", "other-wedge-count", "no-such-wedge", "off-grid", "long", "short-coded",
+        "long-coded", "huge-count", "other-grid",
+    ],
+)  # fmt: skip
 def test_refine_js_refuses_damaged_wedge_frames(tmp_path, spot_pm, change, message):
     frames = list(
         encode_split_frames(spot_pm, spot_pm.n_base, spot_pm.n_full, splits_per_frame=200)
     )
+    if isinstance(change, _WedgeArraysChanged):
+        probs = new_wedge_contexts(2)  # spot's UVs, as the first frame leaves them
+        wedge_arrays(msgpack.unpackb(frames[0][4:-4]), probs)
+        change = functools.partial(with_wedge_arrays, change=change.change, probs=probs)
     stream = frames[0] + _rewritten(frames[1], change) + b"".join(frames[2:])
     answer = run_refine_js(tmp_path, spot_pm, [], stream=stream)
     assert answer["error"].startswith(message), answer
@@ -379,13 +458,36 @@ def test_refine_js_refuses_damaged_wedge_frames(tmp_path, spot_pm, change, messa
     [
         (lambda frames: b"".join(frames)[:-3], "WireFormatError: split stream ends inside a frame"),
         (lambda frames: b"".join(frames[1:]), "WireFormatError: frame refines 4 vertices"),
-        (lambda frames: frames[0] + b"\x05\x00\x00\x00junk!", "Error: does not inflate"),
         (
-            lambda frames: frames[0] + frame_of(zlib.compress(b"\x92\x01\x02")),
+            lambda frames: frames[0] + b"\x09\x00\x00\x00junk!junk",
+            "WireFormatError: split frame: the CRC-32 does not match",
+        ),
+        (
+            lambda frames: frames[0] + sealed(b"junk!"),
+            "WireFormatError: unreadable split frame",
+        ),
+        (
+            lambda frames: frames[0] + sealed(b"\x92\x01\x02"),
             "WireFormatError: not a qem-splits frame",
         ),
+        (
+            lambda frames: frames[0] + _truncated_splits(frames[1]),
+            "WireFormatError: split frame: the coded splits end early",
+        ),
+        (
+            lambda frames: _continuing(frames[0]) + b"".join(frames[1:]),
+            "WireFormatError: split frame continues a stream whose previous frame",
+        ),
     ],
-    ids=["cut-inside-a-frame", "frame-skipped", "not-zlib", "not-a-splits-map"],
+    ids=[
+        "cut-inside-a-frame",
+        "frame-skipped",
+        "damaged",
+        "not-msgpack",
+        "not-a-splits-map",
+        "truncated",
+        "continues-nothing",
+    ],
 )
 def test_refine_js_refuses_damaged_streams(tmp_path, damage, message):
     pm = hand_drawn_pm()
@@ -533,8 +635,8 @@ def test_server_streams_wedges_that_refine_its_levels(server, appearance_meshes)
             with http.stream("GET", f"{url}/splits") as response:
                 assert response.headers["content-type"] == "application/x-qem-splits"
                 for payload in iter_frames(response.iter_bytes()):
-                    body = msgpack.unpackb(zlib.decompress(payload))
-                    assert body["version"] == 3 and "wedge_corners" in body
+                    body = msgpack.unpackb(payload[:-4])
+                    assert body["version"] == 3 and "wedges" in body
                     decoder.feed(payload)
             full = http.get(f"{url}/lod", params={"format": "msgpack"}).content
             expected = codecs.msgpack_mesh.read_msgpack_wedges(full)

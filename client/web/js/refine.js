@@ -4,12 +4,12 @@
 // Wire formats (qem_core/stream.py, qem_core/codecs/msgpack_mesh.py):
 //   base mesh   one msgpack map "qem-mesh-msgpack" v1, positions "u16" on the grid whose
 //               box is `bbox` (the very integers the split stream's deltas refer to);
-//   split stream  frames of uint32 LE length L + L bytes of zlib (RFC 1950) data holding
-//               a msgpack map "qem-splits" v3; integer fields are little-endian byte
-//               planes (all low bytes, then the next...), positions zigzag residuals,
-//               connectivity relative to the split vertex's neighbourhood, which the
-//               decoder below keeps at the received level (docs/formats.md section 2);
-//               a mesh with appearance has wedges, in both (wedges.js).
+//   split stream  frames of uint32 LE length L + L bytes holding a msgpack map
+//               "qem-splits" v3 and the CRC-32 of its bytes; its `splits` bytes are
+//               range-coded (range_coder.js): connectivity relative to the split
+//               vertex's neighbourhood, which the decoder below keeps at the received
+//               level, positions as residuals (docs/formats.md section 2); a mesh with
+//               appearance has wedges, in both (wedges.js; the frame's `wedges` bytes).
 //
 // Split k (level L = nBase + k -> L + 1), as qem_core/_kernels/refine.py applies it:
 //
@@ -23,26 +23,121 @@
 // move costs O(splits crossed + relabels), never a refetch.
 
 import { decode } from "@msgpack/msgpack";
-import {
-  binArray,
-  fail,
-  FrameCutter,
-  fromPlanes,
-  INDEX_TYPES,
-  inflate,
-  unzigzag,
-  WireFormatError,
-} from "./wire.js";
+import { bitLength, INTEGER_SLOTS, newProbs, RangeDecoder, UNIFORM_SLOTS } from "./range_coder.js";
+import { binArray, fail, FrameCutter, INDEX_TYPES, WireFormatError } from "./wire.js";
 import { decodeBaseWedges, decodeWedgeFields, WedgeLevels } from "./wedges.js";
 
-export { FrameCutter, fromPlanes, inflate, WireFormatError };
+export { FrameCutter, WireFormatError };
 
 export const STREAM_VERSION = 3;
 export const MESH_VERSION = 1;
 const EXPLICIT_FACE = 6; // face codes 0-2: (s, t, x) rotated; 3-5: (t, s, x); 6: explicit
 const ESCAPE = 255; // a third corner given as a back-distance, not as a neighbour index
-const PREDICT_LIMIT = 64; // as qem_core/_kernels/stream_coding.py
 const SPAN_RING_LIMIT = 64; // as stream_coding.py: products stay below 2^53
+const S_BUCKETS = 32; // s is coded as its bucket of [0, t), then its place in it
+const S_BUCKET_BITS = 5;
+const DIFF_BITS = 13; // as stream_coding.py: shifts that keep products below 2^53
+const NORMAL_BITS = 12;
+const LAPLACE_BITS = 20;
+const FRAME_SPLIT_LIMIT = 1 << 16; // as qem_core.stream: what one frame may allocate
+const FRAME_FACE_LIMIT = 1 << 22;
+const ITEMS_PER_BYTE = 512;
+// The contexts of the coded fields, slots of one probability array
+// (qem_core/_kernels/stream_coding.py, same layout).
+const ROWS = 21;
+const STEP_ROWS = 9;
+const IS = INTEGER_SLOTS;
+const S_BUCKET_SLOTS = 0;
+const S_SLOTS = S_BUCKET_SLOTS + S_BUCKETS;
+const COUNT_SLOTS = S_SLOTS + UNIFORM_SLOTS;
+const CODE_SLOTS = COUNT_SLOTS + IS;
+const ESCAPE_SLOT = CODE_SLOTS + 8 * 8;
+const THIRD_SLOTS = ESCAPE_SLOT + 1;
+const STEP_SLOTS = THIRD_SLOTS + 17 * 8;
+const BACK_SLOTS = STEP_SLOTS + STEP_ROWS * IS;
+const MASK_SLOTS = BACK_SLOTS + IS;
+const SPAN_SLOTS = MASK_SLOTS + 3;
+const SPAN_SIGN_SLOTS = SPAN_SLOTS + ROWS * IS;
+const NORMAL_SLOTS = SPAN_SIGN_SLOTS + 3;
+const PLACE_SLOTS = NORMAL_SLOTS + ROWS * IS;
+const MID_SLOTS = PLACE_SLOTS + 2;
+const MID1_SLOTS = MID_SLOTS + ROWS * IS;
+const MID2_SLOTS = MID1_SLOTS + ROWS * IS;
+const MID3_SLOTS = MID2_SLOTS + ROWS * IS;
+const MID_SIGN_SLOTS = MID3_SLOTS + ROWS * IS;
+export const CONTEXT_SLOTS = MID_SIGN_SLOTS + 6;
+
+/** Sort array[0..n) ascending: by insertion for the few entries of a vertex's ring (a
+ * typed array's sort costs more than it sorts there), else the typed array's sort. */
+function sortPrefix(array, n) {
+  if (n > 32) {
+    array.subarray(0, n).sort();
+    return;
+  }
+  for (let i = 1; i < n; i++) {
+    const value = array[i];
+    let j = i - 1;
+    while (j >= 0 && array[j] > value) {
+      array[j + 1] = array[j];
+      j--;
+    }
+    array[j + 1] = value;
+  }
+}
+
+/** sortPrefix for the Float64Array of fan keys (one element type per function keeps
+ * each of them monomorphic for the JIT). */
+function sortKeys(array, n) {
+  if (n > 32) {
+    array.subarray(0, n).sort();
+    return;
+  }
+  for (let i = 1; i < n; i++) {
+    const value = array[i];
+    let j = i - 1;
+    while (j >= 0 && array[j] > value) {
+      array[j + 1] = array[j];
+      j--;
+    }
+    array[j + 1] = value;
+  }
+}
+
+/** Context of a sign: 0 for 0, 1 for positive, 2 for negative (stream_coding._sign). */
+function signContext(value) {
+  return value > 0 ? 1 : value < 0 ? 2 : 0;
+}
+
+/** The three values shifted right (floor) until the largest has at most `bits` bits
+ * (stream_coding._shift_to). */
+function shiftTo(values, bits) {
+  const big = Math.max(Math.abs(values[0]), Math.abs(values[1]), Math.abs(values[2]));
+  if (big < 2 ** bits) return; // no shift
+  const divisor = 2 ** (bitLength(big) - bits);
+  for (let d = 0; d < 3; d++) values[d] = Math.floor(values[d] / divisor);
+}
+
+/** num / den rounded to nearest, halves up (stream_coding._round_div). */
+function roundDiv(num, den) {
+  if (den < 0) {
+    num = -num;
+    den = -den;
+  }
+  return Math.floor((2 * num + den) / (2 * den));
+}
+
+/** Index of the largest magnitude of the three, the first on ties. */
+function dominant(values) {
+  let k = 0;
+  for (let d = 1; d < 3; d++) if (Math.abs(values[d]) > Math.abs(values[k])) k = d;
+  return k;
+}
+
+/** A signed value: its magnitude (integer at slots[0]), then its sign at slots[1]. */
+function decodeValue(coder, probs, slots) {
+  const magnitude = coder.integer(probs, slots[0], false);
+  return magnitude !== 0 && coder.bit(probs, slots[1]) ? -magnitude : magnitude;
+}
 
 /** The grid p = origin + q * step of `bits` bits over the box low..high (quantise.Grid). */
 export function gridOverBox(bbox, bits) {
@@ -101,8 +196,35 @@ function binField(body, key, length) {
   return value;
 }
 
-/** One inflated frame's msgpack map, fields checked and planes decoded (no mesh state). */
-export function decodeFrame(bytes) {
+const CRC_TABLE = (() => {
+  const table = new Uint32Array(256);
+  for (let n = 0; n < 256; n++) {
+    let c = n;
+    for (let k = 0; k < 8; k++) c = c & 1 ? 0xedb88320 ^ (c >>> 1) : c >>> 1;
+    table[n] = c >>> 0;
+  }
+  return table;
+})();
+
+/** CRC-32 (IEEE 802.3, zlib.crc32) of bytes. */
+export function crc32(bytes) {
+  let c = 0xffffffff;
+  for (let i = 0; i < bytes.length; i++) c = CRC_TABLE[(c ^ bytes[i]) & 0xff] ^ (c >>> 8);
+  return (c ^ 0xffffffff) >>> 0;
+}
+
+/** One frame payload (msgpack map + CRC-32 of it), its counts checked (the splits decode
+ * against the mesh). */
+export function decodeFrame(payload) {
+  const n = payload.length - 4;
+  const stored =
+    n >= 0
+      ? (payload[n] | (payload[n + 1] << 8) | (payload[n + 2] << 16) | (payload[n + 3] << 24)) >>> 0
+      : -1;
+  if (n < 0 || crc32(payload.subarray(0, n)) !== stored) {
+    fail("split frame: the CRC-32 does not match (damaged frame)");
+  }
+  const bytes = payload.subarray(0, n);
   let body;
   try {
     body = decode(bytes);
@@ -116,28 +238,37 @@ export function decodeFrame(bytes) {
   if (body.version !== STREAM_VERSION) {
     fail(`split frame version ${body.version} is no longer read (this reads ${STREAM_VERSION})`);
   }
-  for (const key of ["n_from", "n_to", "faces_from", "bits", "n_new_faces", "n_backs"]) {
+  for (const key of ["n_from", "n_to", "faces_from", "n_new_faces"]) {
     if (!Number.isInteger(body[key]) || body[key] < 0)
       fail(`split frame: '${key}' is ${body[key]}`);
+  }
+  const continues = body.continues ?? false;
+  if (continues !== true && continues !== false) fail(`split frame: 'continues' is ${continues}`);
+  if (!continues) {
+    // A stream's first frame carries the grid; the next ones go on with it.
+    if (!Number.isInteger(body.bits) || body.bits < 0) fail(`split frame: 'bits' is ${body.bits}`);
+    if (!Array.isArray(body.grid) || body.grid.length !== 6) fail("split frame: bad 'grid'");
   }
   const k = body.n_to - body.n_from;
   const nNew = body.n_new_faces;
   if (k < 0) fail("split frame: inconsistent counts");
-  if (!Array.isArray(body.grid) || body.grid.length !== 6) fail("split frame: bad 'grid'");
+  const coded = binField(body, "splits", null);
+  // As qem_core.stream._check_frame_size: bounded before anything is allocated.
+  if (k > FRAME_SPLIT_LIMIT || nNew > FRAME_FACE_LIMIT) {
+    fail(`split frame: ${k} splits / ${nNew} faces, over the limit`);
+  }
+  if (Math.max(k, nNew) > ITEMS_PER_BYTE * (coded.length + 1)) {
+    fail(`split frame: ${coded.length} coded bytes cannot hold ${k} splits and ${nNew} faces`);
+  }
   return {
     nFrom: body.n_from,
     nTo: body.n_to,
     facesFrom: body.faces_from,
-    bits: body.bits,
-    grid: body.grid,
-    splitBack: fromPlanes(body.split_back, 4, k, "split_back"),
-    newFaceCounts: fromPlanes(body.new_face_counts, 2, k, "new_face_counts"),
-    faceCodes: binField(body, "face_codes", nNew),
-    thirdCorners: binField(body, "third_corners", null),
-    cornersBack: fromPlanes(body.corners_back, 4, body.n_backs, "corners_back"),
-    relabelMasks: binField(body, "relabel_masks", null),
-    mid: unzigzag(fromPlanes(body.position_mid, 4, 3 * k, "position_mid")),
-    span: unzigzag(fromPlanes(body.position_span, 4, 3 * k, "position_span")),
+    continues,
+    bits: continues ? null : body.bits,
+    grid: continues ? null : body.grid,
+    nNewFaces: nNew,
+    coded,
     wedges: decodeWedgeFields(body, k),
   };
 }
@@ -162,6 +293,12 @@ class SplitState {
     this.cs = new Int32Array(16); // corners of s, sorted
     this.nb = new Int32Array(32); // its distinct neighbours, sorted
     this.mark = new Uint8Array(16);
+    this.ys = new Int32Array(16); // vertices met walking around s
+    this.keys = new Float64Array(16); // the fan's corners by side (fanKeys)
+    this.seen = new Int32Array(nFull); // ringSum's marks
+    this.stamp = 0;
+    this.sumA = [0, 0, 0];
+    this.sumB = [0, 0, 0];
   }
 
   link(v, c) {
@@ -181,80 +318,201 @@ class SplitState {
     else this.next[prev] = this.next[c];
   }
 
-  /** Sorted corners of s into cs, sorted distinct other vertices into nb; [nc, nn]. */
+  /** Sorted corners of s into cs (this.nc of them), sorted distinct other vertices into
+   * nb (this.nn). */
   gather(s) {
-    let degree = 0;
-    for (let c = this.head[s]; c !== -1; c = this.next[c]) degree++;
-    if (degree > this.cs.length) {
-      this.cs = new Int32Array(2 * degree);
-      this.nb = new Int32Array(4 * degree);
-      this.mark = new Uint8Array(2 * degree);
-    }
-    const { cs, nb, faces } = this;
+    const { head, next, faces } = this;
+    let cs = this.cs;
     let nc = 0;
-    for (let c = this.head[s]; c !== -1; c = this.next[c]) cs[nc++] = c;
-    cs.subarray(0, nc).sort();
+    for (let c = head[s]; c !== -1; c = next[c]) {
+      if (nc === cs.length) {
+        this.grow(2 * nc);
+        cs = this.cs;
+      }
+      cs[nc++] = c;
+    }
+    sortPrefix(cs, nc);
+    const nb = this.nb;
     let m = 0;
     for (let q = 0; q < nc; q++) {
-      const f = 3 * Math.floor(cs[q] / 3);
-      for (let j = 0; j < 3; j++) if (faces[f + j] !== s) nb[m++] = faces[f + j];
+      const c = cs[q];
+      const f = c - (c % 3);
+      const a = faces[f];
+      const b = faces[f + 1];
+      const d = faces[f + 2];
+      if (a !== s) nb[m++] = a;
+      if (b !== s) nb[m++] = b;
+      if (d !== s) nb[m++] = d;
     }
-    nb.subarray(0, m).sort();
+    sortPrefix(nb, m);
     let nn = 0;
     for (let q = 0; q < m; q++) if (nn === 0 || nb[q] !== nb[nn - 1]) nb[nn++] = nb[q];
-    return [nc, nn];
+    this.nc = nc;
+    this.nn = nn;
+  }
+
+  /** Room for the buffers of `degree` corners of s (cs keeps what it holds). */
+  grow(degree) {
+    const cs = new Int32Array(degree);
+    cs.set(this.cs);
+    this.cs = cs;
+    this.nb = new Int32Array(2 * degree);
+    this.mark = new Uint8Array(degree);
+    this.ys = new Int32Array(degree);
+    this.keys = new Float64Array(degree);
+  }
+
+  /** keys[0..nc) = side * nc + q sorted, side the corner before s (after s when not
+   * `forward`) in the face of cs[q] (stream_coding._fan_keys). */
+  fanKeys(nc, forward) {
+    if (this.keysFor === forward) return; // this split's corners, keyed so already
+    this.keysFor = forward;
+    const { cs, faces, keys } = this;
+    for (let q = 0; q < nc; q++) {
+      const c = cs[q];
+      const f = c - (c % 3);
+      const j = c % 3;
+      keys[q] = (forward ? faces[f + ((j + 2) % 3)] : faces[f + ((j + 1) % 3)]) * nc + q;
+    }
+    sortKeys(keys, nc);
+  }
+
+  /** The first corner q (in cs order) not marked in `used` whose side is y, or -1
+   * (stream_coding._fan_next). */
+  fanNext(nc, used, y) {
+    const keys = this.keys;
+    let lo = 0;
+    let hi = nc;
+    while (lo < hi) {
+      const mid = (lo + hi) >>> 1;
+      if (keys[mid] < y * nc) lo = mid + 1;
+      else hi = mid;
+    }
+    for (; lo < nc && keys[lo] < (y + 1) * nc; lo++) {
+      const q = keys[lo] - y * nc;
+      if (!used[q]) return q;
+    }
+    return -1;
+  }
+
+  /** The corner after s (before s when not `forward`) in the face of cs[q]. */
+  fanStep(q, forward) {
+    const c = this.cs[q];
+    const f = c - (c % 3);
+    const j = c % 3;
+    return forward ? this.faces[f + ((j + 1) % 3)] : this.faces[f + ((j + 2) % 3)];
+  }
+
+  /** Walk around s from `start` (stream_coding._walk): the corners taken are marked in
+   * mark[0..nc), the vertices met before `stop` go into ys; returns how many. */
+  walk(nc, start, forward, stop) {
+    const { mark, ys } = this;
+    mark.fill(0, 0, nc);
+    this.fanKeys(nc, forward);
+    let y = start;
+    let m = 0;
+    for (let step = 0; step < nc; step++) {
+      const q = this.fanNext(nc, mark, y);
+      if (q < 0) break;
+      mark[q] = 1;
+      y = this.fanStep(q, forward);
+      if (y === stop) break;
+      ys[m++] = y;
+    }
+    return m;
   }
 
   /** The predicted relabel mask into mark[0..nc): the fan of s's faces from wing xl to
-   * wing xr (stream_coding._predict). */
+   * wing xr, or back from xr without xl (stream_coding._predict). */
   predict(nc, xl, xr) {
-    const { cs, faces, mark } = this;
-    mark.fill(0, 0, nc);
-    if (nc > PREDICT_LIMIT || (xl < 0 && xr < 0)) return;
-    const forward = xl >= 0;
-    let y = forward ? xl : xr;
-    for (let step = 0; step < nc; step++) {
-      let found = -1;
-      for (let q = 0; q < nc; q++) {
-        if (mark[q]) continue;
-        const c = cs[q];
-        const f = c - (c % 3);
-        const j = c % 3;
-        const side = forward ? faces[f + ((j + 2) % 3)] : faces[f + ((j + 1) % 3)];
-        if (side === y) {
-          found = q;
-          break;
-        }
-      }
-      if (found < 0) return;
-      mark[found] = 1;
-      const c = cs[found];
+    if (xl >= 0) this.walk(nc, xl, true, xr);
+    else if (xr >= 0) this.walk(nc, xr, false, -1);
+    else this.mark.fill(0, 0, nc);
+  }
+
+  /** What the positions' contexts need of s's ring before the split (nn neighbours in
+   * nb), into shape (stream_coding._ring_shape): the spread per axis, the ring's normal
+   * and the sign context of the curvature along it. */
+  ringShape(s, nc, nn, shape) {
+    const { cs, nb, q, faces } = this;
+    const sx = q[3 * s];
+    const sy = q[3 * s + 1];
+    const sz = q[3 * s + 2];
+    let big = 0;
+    let [ax, ay, az] = [0, 0, 0]; // sums of |offset|
+    let [lx, ly, lz] = [0, 0, 0]; // sums of offsets
+    for (let j = 0; j < nn; j++) {
+      const w = 3 * nb[j];
+      const ox = q[w] - sx;
+      const oy = q[w + 1] - sy;
+      const oz = q[w + 2] - sz;
+      lx += ox;
+      ly += oy;
+      lz += oz;
+      ax += Math.abs(ox);
+      ay += Math.abs(oy);
+      az += Math.abs(oz);
+      big = Math.max(big, Math.abs(ox), Math.abs(oy), Math.abs(oz));
+    }
+    const spread = shape.spread;
+    spread[0] = nn ? Math.floor(ax / nn) : 0;
+    spread[1] = nn ? Math.floor(ay / nn) : 0;
+    spread[2] = nn ? Math.floor(az / nn) : 0;
+    const divisor = 2 ** Math.max(0, bitLength(big) - DIFF_BITS);
+    let nx = 0;
+    let ny = 0;
+    let nz = 0;
+    for (let i = 0; i < nc; i++) {
+      const c = cs[i];
       const f = c - (c % 3);
       const j = c % 3;
-      y = forward ? faces[f + ((j + 1) % 3)] : faces[f + ((j + 2) % 3)];
-      if (forward && y === xr) return;
+      const u = 3 * faces[f + ((j + 1) % 3)];
+      const w = 3 * faces[f + ((j + 2) % 3)];
+      let [ux, uy, uz] = [q[u] - sx, q[u + 1] - sy, q[u + 2] - sz];
+      let [wx, wy, wz] = [q[w] - sx, q[w + 1] - sy, q[w + 2] - sz];
+      if (divisor !== 1) {
+        ux = Math.floor(ux / divisor);
+        uy = Math.floor(uy / divisor);
+        uz = Math.floor(uz / divisor);
+        wx = Math.floor(wx / divisor);
+        wy = Math.floor(wy / divisor);
+        wz = Math.floor(wz / divisor);
+      }
+      nx += uy * wz - uz * wy;
+      ny += uz * wx - ux * wz;
+      nz += ux * wy - uy * wx;
     }
+    const normal = shape.normal;
+    normal[0] = nx;
+    normal[1] = ny;
+    normal[2] = nz;
+    shiftTo(normal, NORMAL_BITS);
+    const laplace = shape.laplace;
+    laplace[0] = lx;
+    laplace[1] = ly;
+    laplace[2] = lz;
+    shiftTo(laplace, LAPLACE_BITS);
+    shape.bulge = Math.sign(laplace[0] * normal[0] + laplace[1] * normal[1] + laplace[2] * normal[2]);
   }
 
   /** Sum of the grid positions of v's distinct neighbours other than `other` into
    * total; returns their number (stream_coding._ring_sum). */
   ringSum(v, other, total) {
-    const { faces, nb, q } = this;
-    let m = 0;
+    const { faces, q, seen } = this;
+    const stamp = ++this.stamp; // marks the neighbours counted in this call
+    total.fill(0);
+    let count = 0;
     for (let c = this.head[v]; c !== -1; c = this.next[c]) {
       const f = c - (c % 3);
       for (let j = 0; j < 3; j++) {
         const w = faces[f + j];
-        if (w !== v && w !== other) nb[m++] = w;
+        if (w === v || w === other || seen[w] === stamp) continue;
+        seen[w] = stamp;
+        count++;
+        total[0] += q[3 * w];
+        total[1] += q[3 * w + 1];
+        total[2] += q[3 * w + 2];
       }
-    }
-    nb.subarray(0, m).sort();
-    total.fill(0);
-    let count = 0;
-    for (let j = 0; j < m; j++) {
-      if (j > 0 && nb[j] === nb[j - 1]) continue;
-      count++;
-      for (let d = 0; d < 3; d++) total[d] += q[3 * nb[j] + d];
     }
     return count;
   }
@@ -262,11 +520,8 @@ class SplitState {
   /** The predicted t - s_new once the split's faces are in place: s and t each at the
    * centroid of its ring, solved for both, floored (stream_coding._span_prediction). */
   spanPrediction(s, t, prediction) {
-    let need = 0;
-    for (const v of [s, t]) for (let c = this.head[v]; c !== -1; c = this.next[c]) need += 2;
-    if (need > this.nb.length) this.nb = new Int32Array(2 * need);
-    const sumA = [0, 0, 0];
-    const sumB = [0, 0, 0];
+    const sumA = this.sumA;
+    const sumB = this.sumB;
     const a = this.ringSum(t, s, sumA);
     const b = this.ringSum(s, t, sumB);
     prediction.fill(0);
@@ -325,6 +580,7 @@ export class ProgressiveLevels {
     this.relabelFaces = new Uint32Array(Math.max(16, 2 * nSplits)); // grows if needed
     this.received = this.nBase; // vertex count up to which splits are held
     this.state = new SplitState(base, nFull, fFull); // the received level, for decoding
+    this.contexts = null; // the range coder's, as the stream's last frame left them
     this.broken = null; // why a frame was refused half-way
     this.level = this.nBase; // vertex count the buffers hold now
     // Appearance (UVs, colours, normals) when the base mesh has wedges; the stream's
@@ -354,16 +610,18 @@ export class ProgressiveLevels {
       );
     }
     if (nTo > this.nFull) fail(`frame goes to ${nTo} vertices, past the full ${this.nFull}`);
-    this.checkGrid(frame);
-    const k = nTo - nFrom;
-    let faces = facesFrom;
-    for (let i = 0; i < k; i++) faces += frame.newFaceCounts[i];
-    if (faces - facesFrom !== frame.faceCodes.length) {
-      fail("split frame: face counts do not match the face codes");
+    if (frame.continues) {
+      if (!this.contexts) {
+        fail("split frame continues a stream whose previous frame the viewer did not decode");
+      }
+    } else {
+      this.checkGrid(frame);
     }
+    const faces = facesFrom + frame.nNewFaces;
     if (faces > this.fFull) fail(`frame brings ${faces} faces, past the full ${this.fFull}`);
+    if (!frame.continues) this.contexts = newProbs(CONTEXT_SLOTS); // a stream's first frame
     try {
-      this.wedges?.beginFrame(frame.wedges);
+      this.wedges?.beginFrame(frame.wedges, frame.continues);
       this.decodeSplits(frame);
       this.wedges?.endFrame();
     } catch (error) {
@@ -373,77 +631,104 @@ export class ProgressiveLevels {
     this.received = nTo;
   }
 
-  /** The frame's splits against the received level (stream_coding.decode_connectivity
-   * and uncode_positions), stored as split vertex, deltas and relabelled faces. */
+  /** The frame's splits against the received level (stream_coding.decode_connectivity),
+   * decoded from its range-coded bytes with the contexts the stream's previous frame
+   * left (fresh for its first frame), stored as split vertex, deltas and relabelled
+   * faces. */
   decodeSplits(frame) {
-    const { nFrom, faceCodes, thirdCorners, cornersBack, relabelMasks, mid, span } = frame;
+    const { nFrom } = frame;
     const k = frame.nTo - nFrom;
     const first = nFrom - this.nBase;
     const state = this.state;
     const sf = state.faces;
     const q = state.q;
     const out = this.indices;
+    const coder = new RangeDecoder(frame.coded);
+    const probs = this.contexts;
+    const short = () => fail("split frame: the coded splits end early (truncated or corrupt data)");
+    const badThird = (t) => fail(`split ${t}: a third corner is not a neighbour of the split vertex`);
     let relabel = this.relabelOffsets[first];
-    let atCode = 0;
-    let atThird = 0;
-    let atBack = 0;
-    let atMask = 0;
     let face = frame.facesFrom;
+    const faceEnd = face + frame.nNewFaces;
     const prediction = [0, 0, 0];
+    const shape = { spread: [0, 0, 0], normal: [0, 0, 0], laplace: [0, 0, 0], bulge: 0 };
+    const edge = [0, 0, 0];
+    const mid = [0, 0, 0];
+    const axes = [0, 1, 2];
+    const slots = [0, 0];
     for (let i = 0; i < k; i++) {
+      if (coder.broken) short();
       const t = nFrom + i;
-      const back = frame.splitBack[i];
-      if (back < 1 || back > t) fail(`split ${t}: names a vertex that does not exist yet`);
-      const s = t - back;
-      const [nc, nn] = state.gather(s);
-      const count = frame.newFaceCounts[i];
+      if (t < 1) fail(`split ${t}: names a vertex that does not exist yet`);
+      const bucket = coder.tree(probs, S_BUCKET_SLOTS, S_BUCKET_BITS);
+      const lo = Math.floor((bucket * t + S_BUCKETS - 1) / S_BUCKETS);
+      const hi = Math.floor(((bucket + 1) * t + S_BUCKETS - 1) / S_BUCKETS);
+      if (hi <= lo) fail(`split ${t}: names a vertex that does not exist yet`);
+      const s = lo + coder.uniform(probs, S_SLOTS, hi - lo);
+      state.gather(s);
+      const { nc, nn } = state;
+      state.keysFor = null; // the fan keys are not this split's yet
+      state.ringShape(s, nc, nn, shape);
+      const count = coder.integer(probs, COUNT_SLOTS, false);
+      if (count > faceEnd - face) fail("split frame: the splits' face counts do not add up to n_new_faces");
       let xl = -1;
       let xr = -1;
+      let firstForward = false;
+      let walkLength = -1;
       const firstNew = face;
+      let previous = 7;
       for (let j = 0; j < count; j++, face++) {
-        const code = faceCodes[atCode++];
+        const code = coder.tree(probs, CODE_SLOTS + 8 * previous, 3);
+        previous = code;
         const f = 3 * face;
         if (code === EXPLICIT_FACE) {
-          if (atBack + 3 > cornersBack.length) fail("split frame: a field ends before the splits do");
           for (let c = 0; c < 3; c++) {
-            const b = cornersBack[atBack++];
+            const b = coder.integer(probs, BACK_SLOTS, false);
             if (b > t) fail(`split ${t}: a new face uses a vertex that does not exist`);
             sf[f + c] = t - b;
           }
           continue;
         }
         if (code > EXPLICIT_FACE) fail(`split frame: bad face code ${code}`);
-        if (atThird >= thirdCorners.length) fail("split frame: a field ends before the splits do");
-        const index = thirdCorners[atThird++];
-        let x;
-        if (index === ESCAPE) {
-          if (atBack >= cornersBack.length) fail("split frame: a field ends before the splits do");
-          const b = cornersBack[atBack++];
+        const forward = code < 3;
+        const wing = xl >= 0 || xr >= 0;
+        let x = -1;
+        if (wing && walkLength < 0 && forward !== firstForward) {
+          // The second wing: its step on the walk around s from the first.
+          const start = xl >= 0 ? xl : xr;
+          walkLength = state.walk(nc, start, firstForward, start);
+          if (walkLength > 0) {
+            const step = coder.integer(probs, STEP_SLOTS + Math.min(walkLength, STEP_ROWS - 1) * IS, false);
+            if (step > walkLength) badThird(t);
+            if (step < walkLength) x = state.ys[step];
+          }
+        }
+        if (!wing) firstForward = forward;
+        if (x >= 0) {
+          // given by the walk
+        } else if (coder.bit(probs, ESCAPE_SLOT)) {
+          const b = coder.integer(probs, BACK_SLOTS, false);
           if (b > t) fail(`split ${t}: a new face uses a vertex that does not exist`);
           x = t - b;
-        } else if (index < nn) {
-          x = state.nb[index];
+        } else if (nn > 0) {
+          const nIndex = Math.min(nn, ESCAPE);
+          x = state.nb[coder.uniform(probs, THIRD_SLOTS + Math.min(nIndex, 16) * 8, nIndex)];
         } else {
-          fail(`split ${t}: a third corner is not a neighbour of the split vertex`);
+          badThird(t);
         }
         const rotation = code % 3;
-        const swapped = code >= 3;
-        sf[f + rotation] = swapped ? t : s;
-        sf[f + ((rotation + 1) % 3)] = swapped ? s : t;
+        sf[f + rotation] = forward ? s : t;
+        sf[f + ((rotation + 1) % 3)] = forward ? t : s;
         sf[f + ((rotation + 2) % 3)] = x;
-        if (!swapped && xl < 0) xl = x;
-        if (swapped && xr < 0) xr = x;
+        if (forward && xl < 0) xl = x;
+        if (!forward && xr < 0) xr = x;
       }
       out.set(sf.subarray(3 * firstNew, 3 * face), 3 * firstNew); // as born
       state.predict(nc, xl, xr);
-      const nBytes = (nc + 7) >> 3;
-      if (atMask + nBytes > relabelMasks.length) fail("split frame: a field ends before the splits do");
       const mark = state.mark;
-      for (let j = 0; j < nc; j++) mark[j] ^= (relabelMasks[atMask + (j >> 3)] >> (j & 7)) & 1;
-      if (nc & 7 && relabelMasks[atMask + nBytes - 1] >> (nc & 7)) {
-        fail("split frame: a relabel mask sets a bit past the split vertex's corners");
+      if (nc && coder.bit(probs, MASK_SLOTS)) {
+        for (let j = 0; j < nc; j++) mark[j] = coder.bit(probs, MASK_SLOTS + 1 + mark[j]);
       }
-      atMask += nBytes;
       this.reserveRelabels(relabel + nc);
       for (let j = 0; j < nc; j++) {
         if (!mark[j]) continue;
@@ -453,30 +738,101 @@ export class ProgressiveLevels {
       }
       for (let c = 3 * firstNew; c < 3 * face; c++) state.link(sf[c], c);
       this.wedges?.decodeSplit(i, s, t, state, nc, firstNew, face);
-      // Positions: a + b = 2 (old + mid) + (e & 1), e = b - a = span + prediction.
-      state.spanPrediction(s, t, prediction);
+      this.decodePositions(coder, probs, state, s, t, shape, prediction, edge, mid, axes, slots);
       for (let axis = 0; axis < 3; axis++) {
         const old = q[3 * s + axis];
-        const m = mid[axis * k + i] + old;
-        const e = span[axis * k + i] + prediction[axis];
-        const a = (2 * m + (e & 1) - e) / 2;
+        const a = mid[axis];
         q[3 * s + axis] = a;
-        q[3 * t + axis] = a + e;
+        q[3 * t + axis] = a + edge[axis];
         this.deltas[6 * (first + i) + axis] = a - old;
-        this.deltas[6 * (first + i) + 3 + axis] = a + e - old;
+        this.deltas[6 * (first + i) + 3 + axis] = a + edge[axis] - old;
       }
       this.splitVertex[first + i] = s;
       this.levelFaces[first + i + 1] = face;
       this.relabelOffsets[first + i + 1] = relabel;
     }
-    if (
-      atCode !== faceCodes.length ||
-      atThird !== thirdCorners.length ||
-      atBack !== cornersBack.length ||
-      atMask !== relabelMasks.length
-    ) {
-      fail("split frame: a field holds more than the splits use");
+    if (coder.broken) short();
+    if (coder.position !== frame.coded.length) {
+      fail("split frame: the coded splits hold bytes past the last split");
     }
+    if (face !== faceEnd) fail("split frame: the splits' face counts do not add up to n_new_faces");
+  }
+
+  /** A split's positions, its connectivity applied (decode_connectivity's last steps):
+   * edge = t - s_new per axis, and into mid the new position of s. */
+  decodePositions(coder, probs, state, s, t, shape, prediction, edge, mid, axes, slots) {
+    const q = state.q;
+    const { spread, normal, bulge } = shape;
+    state.spanPrediction(s, t, prediction);
+    // position_span: the axes other than the normal's dominant one against the rings'
+    // prediction, then that one against the plane of the ring (stream_coding._span_slots).
+    const k = dominant(normal);
+    const plane = normal[k] !== 0;
+    axes[0] = plane && k === 0 ? 1 : 0;
+    axes[1] = plane && k === 2 ? 1 : plane ? 2 : 1;
+    axes[2] = plane ? k : 2;
+    for (let n = 0; n < 3; n++) {
+      const d = axes[n];
+      const row = Math.min(bitLength(spread[d]), ROWS - 1);
+      let against;
+      if (plane && n === 2) {
+        slots[0] = NORMAL_SLOTS + row * IS;
+        slots[1] = slots[0] + IS - 1;
+        against = roundDiv(-(normal[axes[0]] * edge[axes[0]] + normal[axes[1]] * edge[axes[1]]), normal[d]);
+      } else {
+        slots[0] = SPAN_SLOTS + row * IS;
+        slots[1] = SPAN_SIGN_SLOTS + signContext(prediction[d]);
+        against = prediction[d];
+      }
+      edge[d] = decodeValue(coder, probs, slots) + against;
+    }
+    let placement = 0;
+    if (coder.bit(probs, PLACE_SLOTS)) placement = 1 + coder.bit(probs, PLACE_SLOTS + 1);
+    if (placement === 0) this.decodeMid(coder, probs, normal, bulge, edge, mid, axes, slots);
+    for (let axis = 0; axis < 3; axis++) {
+      const old = q[3 * s + axis];
+      const e = edge[axis];
+      if (placement === 1) mid[axis] = old;
+      else if (placement === 2) mid[axis] = old - e;
+      else mid[axis] = (2 * (old + mid[axis]) + (e & 1) - e) / 2; // a + b = 2 (old + mid) + (e & 1)
+    }
+  }
+
+  /** position_mid into mid (offsets from s's old position), in the frame of e and the
+   * normal when there is one (stream_coding._mid_frame, _mid_slots). */
+  decodeMid(coder, probs, normal, bulge, edge, mid, axes, slots) {
+    const binormal = [
+      edge[1] * normal[2] - edge[2] * normal[1],
+      edge[2] * normal[0] - edge[0] * normal[2],
+      edge[0] * normal[1] - edge[1] * normal[0],
+    ];
+    const k = dominant(binormal);
+    if (binormal[k] === 0) {
+      for (let d = 0; d < 3; d++) {
+        slots[0] = MID_SLOTS + Math.min(bitLength(edge[d]), ROWS - 1) * IS;
+        slots[1] = slots[0] + IS - 1;
+        mid[d] = decodeValue(coder, probs, slots);
+      }
+      return;
+    }
+    shiftTo(binormal, NORMAL_BITS);
+    let a = k === 0 ? 1 : 0;
+    let b = k === 2 ? 1 : 2;
+    if (Math.abs(edge[b]) > Math.abs(edge[a])) [a, b] = [b, a];
+    const reduced = edge.slice();
+    shiftTo(reduced, NORMAL_BITS);
+    const length = Math.min(bitLength(Math.abs(edge[0]) + Math.abs(edge[1]) + Math.abs(edge[2])), ROWS - 1);
+    slots[0] = MID1_SLOTS + Math.min(bitLength(edge[a]), ROWS - 1) * IS;
+    slots[1] = MID_SIGN_SLOTS + signContext(bulge * normal[a]);
+    mid[a] = decodeValue(coder, probs, slots);
+    slots[0] = MID2_SLOTS + length * IS;
+    const cross = normal[b] * reduced[a] - normal[a] * reduced[b];
+    slots[1] = MID_SIGN_SLOTS + 3 + signContext(bulge * Math.sign(cross) * Math.sign(reduced[a]));
+    const along = reduced[a] === 0 ? 0 : roundDiv(mid[a] * reduced[b], reduced[a]);
+    mid[b] = decodeValue(coder, probs, slots) + along;
+    slots[0] = MID3_SLOTS + length * IS;
+    slots[1] = slots[0] + IS - 1;
+    mid[k] = decodeValue(coder, probs, slots) + roundDiv(-(binormal[a] * mid[a] + binormal[b] * mid[b]), binormal[k]);
   }
 
   checkGrid(frame) {
@@ -553,8 +909,9 @@ export class ProgressiveLevels {
 
 /**
  * Stream the splits of `url` into `levels`: fetch + ReadableStream, frames cut as bytes
- * arrive, inflated concurrently, applied in order. onFrame(bytesSoFar) runs after each
- * frame is stored; onBytes(bytesSoFar) after each network chunk.
+ * arrive and applied in order (the first that cannot be stops the stream).
+ * onFrame(bytesSoFar) runs after each frame is stored; onBytes(bytesSoFar) after each
+ * network chunk.
  */
 export async function streamSplits(url, levels, { onFrame, onBytes, signal } = {}) {
   const response = await fetch(url, { signal });
@@ -562,40 +919,18 @@ export async function streamSplits(url, levels, { onFrame, onBytes, signal } = {
   const reader = response.body.getReader();
   const cutter = new FrameCutter();
   let bytes = 0;
-  let failure = null; // the first frame that could not be applied stops the stream
-  let applied = Promise.resolve();
   try {
     for (;;) {
       const { done, value } = await reader.read();
-      if (failure) throw failure;
       if (done) break;
       bytes += value.length;
       onBytes?.(bytes);
       for (const payload of cutter.push(value)) {
-        const inflated = inflate(payload); // starts now; frames are applied in order below
-        inflated.catch(() => {}); // reported through `failure`
-        const seen = bytes;
-        applied = applied.then(async () => {
-          if (failure) return;
-          try {
-            let frame;
-            try {
-              frame = decodeFrame(await inflated);
-            } catch (error) {
-              if (error instanceof WireFormatError) throw error;
-              fail(`split frame does not inflate: ${error.message}`);
-            }
-            levels.addFrame(frame);
-            onFrame?.(seen);
-          } catch (error) {
-            failure = error;
-          }
-        });
+        levels.addFrame(decodeFrame(payload));
+        onFrame?.(bytes);
       }
     }
     cutter.finish();
-    await applied;
-    if (failure) throw failure;
   } catch (error) {
     reader.cancel().catch(() => {});
     throw error;

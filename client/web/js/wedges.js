@@ -4,16 +4,17 @@
 // two texture coordinates on one position.
 //
 // Wire formats (docs/formats.md): the base mesh's `wedges` map (the wedge of each face
-// corner, each wedge's values as grid integers) and a frame's wedge fields (version 3):
-// per split, symbols naming the wedge of each corner of s's fan and of the new faces,
-// mostly 0 (predicted), and value residuals. qem_core/_kernels/wedge_coding.py is the
+// corner, each wedge's values as grid integers) and a frame's wedge fields (version 3,
+// range-coded in its `wedges` bytes): per split, symbols naming the wedge of each corner
+// of s's fan and of the new faces, mostly 0 (predicted), and value residuals. qem_core/_kernels/wedge_coding.py is the
 // reference; its module docstring states the prediction rules this file repeats.
 //
 // Level moves keep two states, as refine.js does for the geometry: the received level
 // (what the next frame is coded against) and the level on screen, moved both ways by
 // per-split records of corner and value changes.
 
-import { binArray, fail, fromPlanes, INDEX_TYPES, unzigzag } from "./wire.js";
+import { bitLength, INTEGER_SLOTS, newProbs, RangeDecoder } from "./range_coder.js";
+import { binArray, fail, INDEX_TYPES } from "./wire.js";
 
 const ESCAPE = 255; // as wedge_coding.py: a wedge given as a back-distance (symbols
 // 1..254 name candidates 0..253 of the corner's list)
@@ -61,29 +62,96 @@ function sameGrid(a, b) {
   );
 }
 
-/** A frame's wedge fields (null when it has none), lengths checked. */
+// The range-coded wedge fields (wedge_coding.code_wedge_fields): context slots, the
+// same layout.
+const COUNT_SLOTS = 0;
+const ZERO_SLOTS = COUNT_SLOTS + 3 * INTEGER_SLOTS;
+const SYMBOL_SLOTS = ZERO_SLOTS + 3;
+const BACK_SLOTS = SYMBOL_SLOTS + 255;
+const ROW_SLOTS = BACK_SLOTS + INTEGER_SLOTS;
+const ROW_CLASSES = 8;
+const COLUMN_CLASSES = 4;
+// As qem_core.stream: what the wedge fields of one frame may allocate.
+const FRAME_WEDGE_LIMIT = 2 ** 24;
+const WEDGE_ITEMS_PER_BYTE = 2048;
+
+/** A frame's wedge keys (null when it has none), counts bounded by the coded bytes; the
+ * fields are range-decoded by WedgeLevels.beginFrame (the contexts are the stream's). */
 export function decodeWedgeFields(body, k) {
   if (body.wedge_grid === undefined) return null;
   const grid = attributeGrid(body.wedge_grid, "split frame");
-  for (const key of ["wedges_from", "n_wedge_rows", "n_wedge_backs"]) {
+  for (const key of ["wedges_from", "n_wedge_symbols", "n_wedge_backs", "n_wedge_rows"]) {
     if (!Number.isInteger(body[key]) || body[key] < 0) fail(`split frame: '${key}' is ${body[key]}`);
   }
-  const counts = fromPlanes(body.wedge_counts, 2, 3 * k, "wedge_counts");
+  const coded = body.wedges;
+  if (!(coded instanceof Uint8Array)) fail("split frame: 'wedges' is not bytes");
+  const nSymbols = body.n_wedge_symbols;
+  const nBacks = body.n_wedge_backs;
   const nRows = body.n_wedge_rows;
+  const items = nSymbols + nBacks + grid.width * nRows + 3 * k;
+  if (items > FRAME_WEDGE_LIMIT || items > WEDGE_ITEMS_PER_BYTE * (coded.length + 1)) {
+    fail(
+      `split frame: the coded wedges (${coded.length} bytes) cannot hold ${nSymbols} ` +
+        `symbols, ${nBacks} backs and ${nRows} value rows`,
+    );
+  }
+  return { grid, wedgesFrom: body.wedges_from, k, nSymbols, nBacks, nRows, coded };
+}
+
+/** The contexts of the wedge fields of `width` columns, fresh. */
+function newWedgeContexts(width) {
+  return newProbs(ROW_SLOTS + width * ROW_CLASSES * COLUMN_CLASSES * INTEGER_SLOTS);
+}
+
+/** The wedge fields range-decoded with the contexts `probs` (updated), checked
+ * (wedge_coding.decode_wedge_fields). */
+function rangeDecodeWedgeFields(keys, probs) {
+  const { coded, k, nSymbols, nBacks, nRows } = keys;
+  const width = keys.grid.width;
+  const coder = new RangeDecoder(coded);
+  const short = () => fail("split frame: the coded wedges end early (truncated or corrupt data)");
+  const counts = new Float64Array(3 * k); // exact up to 2^53, as the coder's integers
+  for (let row = 0; row < 3; row++) {
+    for (let i = 0; i < k; i++) {
+      counts[row * k + i] = coder.integer(probs, COUNT_SLOTS + row * INTEGER_SLOTS, false);
+    }
+    if (coder.broken) short();
+  }
+  const symbols = new Uint8Array(nSymbols);
+  let previous = 0;
+  for (let q = 0; q < nSymbols; q++) {
+    const kind = previous === 0 ? 0 : previous === ESCAPE ? 2 : 1;
+    let symbol = 0;
+    if (coder.bit(probs, ZERO_SLOTS + kind)) symbol = 1 + coder.tree(probs, SYMBOL_SLOTS, 8);
+    symbols[q] = symbol;
+    previous = symbol;
+    if (coder.broken) short();
+  }
+  const backs = new Float64Array(nBacks);
+  for (let q = 0; q < nBacks; q++) {
+    backs[q] = coder.integer(probs, BACK_SLOTS, false);
+    if (coder.broken) short();
+  }
+  const rows = new Float64Array(width * nRows); // column by column: rows[d * nRows + r]
+  for (let r = 0; r < nRows; r++) {
+    for (let d = 0; d < width; d++) {
+      const above = r > 0 ? bitLength(rows[d * nRows + r - 1]) : 0;
+      const left = d > 0 ? bitLength(rows[(d - 1) * nRows + r]) : 0;
+      const block = (d * ROW_CLASSES + Math.min(above, ROW_CLASSES - 1)) * COLUMN_CLASSES;
+      const ctx = ROW_SLOTS + (block + Math.min(left, COLUMN_CLASSES - 1)) * INTEGER_SLOTS;
+      const value = coder.integer(probs, ctx, true);
+      // No residual this large keeps a value on a grid of at most 16 bits (and the
+      // received values are 32-bit integers): refused as code_wedges would refuse it.
+      if (Math.abs(value) > 0xffff) fail("split frame: a wedge value leaves its grid");
+      rows[d * nRows + r] = value;
+    }
+    if (coder.broken) short();
+  }
+  if (coder.position !== coded.length) fail("split frame: the coded wedges hold bytes past the last value");
   let rowsNeeded = 0;
   for (let i = 0; i < 2 * k; i++) rowsNeeded += counts[i];
   if (rowsNeeded > nRows) fail("split frame: more new wedges and updates than value rows");
-  const symbols = body.wedge_corners;
-  if (!(symbols instanceof Uint8Array)) fail("split frame: 'wedge_corners' is not bytes");
-  return {
-    grid,
-    wedgesFrom: body.wedges_from,
-    counts,
-    symbols,
-    backs: fromPlanes(body.wedge_backs, 4, body.n_wedge_backs, "wedge_backs"),
-    rows: unzigzag(fromPlanes(body.wedge_values, 4, grid.width * nRows, "wedge_values")),
-    nRows,
-  };
+  return { counts, symbols, backs, rows, nRows };
 }
 
 /** The base mesh's `wedges` map (msgpack_mesh.py), checked. */
@@ -134,20 +202,25 @@ export class WedgeLevels {
     this.nValueChanges = 0;
     this.scratch = { old: new Int32Array(16), ws: new Int32Array(16), list: new Int32Array(32) };
     this.frame = null;
+    this.contexts = null; // the wedge fields' range coder contexts, as the last frame left them
     this.render = new RenderVertices(this, levels);
   }
 
   // -- decoding ----------------------------------------------------------------------------
 
-  /** Check a frame's wedge fields against the received level; start reading them. */
-  beginFrame(fields) {
-    if (!fields) fail("split frame carries no wedges, but the base mesh has some");
-    if (!sameGrid(fields.grid, this.grid)) {
+  /** Check a frame's wedge keys against the received level, decode its fields with the
+   * contexts the stream's previous frame left (fresh for a first frame); start reading
+   * them. */
+  beginFrame(keys, continues) {
+    if (!keys) fail("split frame carries no wedges, but the base mesh has some");
+    if (!sameGrid(keys.grid, this.grid)) {
       fail("the split stream's wedge grid is not the base mesh's: values would not refine");
     }
-    if (fields.wedgesFrom !== this.nWedges) {
-      fail(`frame refines ${fields.wedgesFrom} wedges, the viewer holds ${this.nWedges}`);
+    if (keys.wedgesFrom !== this.nWedges) {
+      fail(`frame refines ${keys.wedgesFrom} wedges, the viewer holds ${this.nWedges}`);
     }
+    if (!continues || !this.contexts) this.contexts = newWedgeContexts(this.width);
+    const fields = { ...keys, ...rangeDecodeWedgeFields(keys, this.contexts) };
     const k = fields.counts.length / 3;
     let added = 0;
     for (let i = 0; i < k; i++) added += fields.counts[i];

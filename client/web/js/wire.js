@@ -1,9 +1,8 @@
-// Bytes to values for the viewer's wire formats: frames cut from a byte stream, zlib
-// inflated, integer fields stored as little-endian byte planes (qem_core/stream.py), bin
-// fields of msgpack maps copied into typed arrays. Errors are WireFormatError.
+// Bytes to values for the viewer's wire formats: frames cut from a byte stream
+// (qem_core/stream.py), bin fields of msgpack maps copied into typed arrays. Errors are
+// WireFormatError. (The frames' range-coded fields: range_coder.js.)
 
 const FRAME_LIMIT = 64 << 20; // as qem_core.stream: a larger length means a broken stream
-const INFLATED_LIMIT = 256 << 20; // as qem_core.stream: a frame may not inflate further
 
 export class WireFormatError extends Error {
   constructor(message) {
@@ -14,30 +13,6 @@ export class WireFormatError extends Error {
 
 export function fail(message) {
   throw new WireFormatError(message);
-}
-
-/** `count` little-endian unsigned integers of `width` bytes stored as byte planes. */
-export function fromPlanes(bytes, width, count, what) {
-  if (!(bytes instanceof Uint8Array) || bytes.length !== width * count) {
-    fail(`split frame: '${what}' holds ${bytes?.length} bytes, expected ${width * count}`);
-  }
-  const out = width === 2 ? new Uint16Array(count) : new Uint32Array(count);
-  for (let plane = 0; plane < width; plane++) {
-    const shift = 8 * plane;
-    const offset = plane * count;
-    for (let i = 0; i < count; i++) out[i] += bytes[offset + i] * 2 ** shift;
-  }
-  return out;
-}
-
-/** Zigzag-coded uint32 -> int32 in place: 0, 1, 2, 3... -> 0, -1, 1, -2... */
-export function unzigzag(values) {
-  const out = new Int32Array(values.length);
-  for (let i = 0; i < values.length; i++) {
-    const v = values[i];
-    out[i] = (v >>> 1) ^ -(v & 1);
-  }
-  return out;
 }
 
 /** A typed array over a copy of msgpack bin bytes (copied: views may be unaligned). */
@@ -102,35 +77,4 @@ export class FrameCutter {
       this.buffer = grown;
     }
   }
-}
-
-/** zlib (RFC 1950) data -> bytes, with the browser's DecompressionStream. The payload
- * is written straight into the stream: going through a Blob costs the blob registry's
- * round trips, seconds per frame on a large stream. */
-export async function inflate(payload) {
-  const stream = new DecompressionStream("deflate");
-  const writer = stream.writable.getWriter();
-  writer.write(payload).catch(() => {}); // errors surface on the readable side
-  writer.close().catch(() => {});
-  const reader = stream.readable.getReader();
-  const chunks = [];
-  let size = 0;
-  for (;;) {
-    const { done, value } = await reader.read();
-    if (done) break;
-    chunks.push(value);
-    size += value.length;
-    if (size > INFLATED_LIMIT) {
-      reader.cancel().catch(() => {});
-      fail(`split frame inflates beyond ${INFLATED_LIMIT >> 20} MiB`);
-    }
-  }
-  if (chunks.length === 1) return chunks[0];
-  const out = new Uint8Array(size);
-  let at = 0;
-  for (const chunk of chunks) {
-    out.set(chunk, at);
-    at += chunk.length;
-  }
-  return out;
 }

@@ -1,0 +1,145 @@
+// The adaptive binary range decoder of the split stream (version 3), bit for bit that of
+// qem_core/_kernels/range_coder.py (its docstring explains the coder): 12-bit
+// probabilities of a 0 with the shift-4 update, a 32-bit range, the first byte LZMA
+// writes (always 0) not stored, so decoding starts by reading 4 bytes.
+//
+// Numbers, not 32-bit bit operations, hold the range and code: both stay below 2^32
+// (the code below the range, which the start checks), so every step is exact.
+
+export const PROB_BITS = 12;
+const ONE = 1 << PROB_BITS;
+export const HALF = ONE >> 1;
+const RATE = 4;
+const TOP = 2 ** 24;
+const MAX_EXPONENT = 32;
+const PREFIX = MAX_EXPONENT + 1;
+const TOP_TREE = 3;
+export const INTEGER_SLOTS = PREFIX + (MAX_EXPONENT + 1) * TOP_TREE + 1;
+export const UNIFORM_SLOTS = 64;
+
+/** Bit length of |value| (stream_coding._bit_length). */
+export function bitLength(value) {
+  let v = Math.abs(value);
+  if (v < 2 ** 31) return 32 - Math.clz32(v);
+  let n = 0;
+  while (v >= 1) {
+    n++;
+    v = Math.floor(v / 2);
+  }
+  return n;
+}
+
+/** Fresh contexts, every bit equally likely. */
+export function newProbs(nSlots) {
+  return new Uint16Array(nSlots).fill(HALF);
+}
+
+export class RangeDecoder {
+  /** A decoder over all of `data` (Uint8Array). */
+  constructor(data) {
+    this.data = data;
+    this.position = 0;
+    this.broken = false; // read past the end, or a code no encoder writes
+    this.range = 0xffffffff;
+    this.code = 0;
+    for (let i = 0; i < 4; i++) this.code = this.code * 256 + this.nextByte();
+    if (this.code >= this.range) {
+      this.broken = true;
+      this.code = 0;
+    }
+  }
+
+  nextByte() {
+    const at = this.position++;
+    if (at < this.data.length) return this.data[at];
+    this.broken = true;
+    return 0;
+  }
+
+  normalise() {
+    while (this.range < TOP) {
+      this.range *= 256;
+      this.code = this.code * 256 + this.nextByte();
+    }
+  }
+
+  bit(probs, ctx) {
+    const p = probs[ctx];
+    const bound = (this.range >>> PROB_BITS) * p;
+    let bit;
+    if (this.code < bound) {
+      this.range = bound;
+      probs[ctx] = p + ((ONE - p) >> RATE);
+      bit = 0;
+    } else {
+      this.code -= bound;
+      this.range -= bound;
+      probs[ctx] = p - (p >> RATE);
+      bit = 1;
+    }
+    this.normalise();
+    return bit;
+  }
+
+  direct() {
+    this.range = Math.floor(this.range / 2);
+    let bit = 0;
+    if (this.code >= this.range) {
+      this.code -= this.range;
+      bit = 1;
+      if (this.code >= this.range) {
+        this.broken = true;
+        this.code = 0;
+      }
+    }
+    this.normalise();
+    return bit;
+  }
+
+  /** An nBits symbol, most significant bit first, contexts the tree's nodes. */
+  tree(probs, base, nBits) {
+    let node = 1;
+    for (let j = 0; j < nBits; j++) node = 2 * node + this.bit(probs, base + node - 1);
+    return node - (1 << nBits);
+  }
+
+  /** Adaptive Exp-Golomb (range_coder.decode_integer). */
+  integer(probs, base, signed) {
+    let exponent = 0;
+    while (exponent < MAX_EXPONENT && this.bit(probs, base + exponent)) exponent++;
+    const rows = base + PREFIX + exponent * TOP_TREE;
+    let n = 1;
+    let node = 1;
+    for (let j = 0; j < exponent; j++) {
+      let bit;
+      if (j < 2) {
+        bit = this.bit(probs, rows + node - 1);
+        node = 2 * node + bit;
+      } else {
+        bit = this.direct();
+      }
+      n = 2 * n + bit;
+    }
+    const magnitude = n - 1;
+    if (signed && magnitude !== 0 && this.bit(probs, base + INTEGER_SLOTS - 1)) return -magnitude;
+    return magnitude;
+  }
+
+  /** A value in [0, n), 1 <= n <= 2^32 (range_coder.decode_uniform). */
+  uniform(probs, base, n) {
+    const top = n - 1;
+    const nBits = 32 - Math.clz32(top);
+    let tight = true;
+    let value = 0;
+    for (let j = nBits - 1; j >= 0; j--) {
+      if (tight && ((top >>> j) & 1) === 0) {
+        value *= 2;
+        continue;
+      }
+      const bit = this.bit(probs, base + j);
+      value = 2 * value + bit;
+      if (bit === 0) tight = false;
+    }
+    return value;
+  }
+}

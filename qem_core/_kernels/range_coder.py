@@ -1,0 +1,308 @@
+"""Adaptive binary range coder (the LZMA coder: 32-bit range, carry propagation through a
+cached byte) and the integer binarisations the split stream (version 3) codes with.
+
+Every decision is a bit coded with an adaptive probability from a context: ``probs`` is
+a flat uint16 array of P(bit = 0) in units of 2^-PROB_BITS, each context one slot. A
+coded 0 moves its slot towards ONE by ``(ONE - p) >> RATE``, a 1 towards 0 by
+``p >> RATE`` (the shift update), so p stays in [2^RATE - 1, ONE - 2^RATE + 1] and no
+decision is ever certain: any bit string decodes to something and costs at least
+``-log2(1 - 2^(RATE - PROB_BITS))`` bits (about 1/177 bit), which bounds how many
+decisions a frame of a given size can hold.
+
+Encoder state ``enc`` (int64, ENCODER_STATE slots): low (33 bits), range (32 bits), the
+cached byte, the number of bytes held back (the cache and the 0xFF bytes a carry may
+still ripple through), bytes written to ``out``, and whether ``out`` overflowed (the
+caller retries with a bigger buffer). The first byte LZMA writes is always 0 (a carry
+never reaches it): it is not written, so the decoder starts with 4 bytes.
+
+Decoder state ``dec`` (int64, DECODER_STATE slots): range, code, read position, and a
+flag set once it has read past the end of ``data`` (it then reads zeros: never an
+out-of-bounds read, and the caller refuses the frame). The encoder's flush writes exactly
+the bytes the decoder will read, so a whole frame ends with the read position at
+``len(data)``: fewer bytes is a truncation, more is junk. A code that is not below the
+range at the start (only a corrupt stream has one) is flagged the same way; with
+code < range at the start, every later step keeps it so, so the state stays in 32 bits.
+
+Binarisations (one function per kind, the caller picks the contexts):
+
+- ``*_bit``: one decision;
+- ``*_tree``: an n-bit symbol, most significant bit first, each bit's context the node
+  of the binary tree above it (2^n - 1 slots): small alphabets;
+- ``*_integer``: adaptive Exp-Golomb over INTEGER_SLOTS slots: the exponent
+  e = floor(log2(|v| + 1)) in unary (a context per position; none after the 32nd 1),
+  the e bits of |v| + 1 below its leading one (the top two with a tree of contexts per
+  exponent, the rest direct bits of probability 1/2: they are close to uniform, and an
+  adaptive context would cost more than it learns), then the sign of a nonzero v when
+  ``signed``. Magnitudes are at most 2^(MAX_EXPONENT + 1) - 2.
+- ``*_uniform``: v in [0, n) as the bits of v, most significant first, each with the
+  context of its position (slots ``UNIFORM_SLOTS``), stopped early once the prefix
+  already rules out values >= n (then the remaining bits are free: v in [0, n) only).
+"""
+
+import numba
+import numpy as np
+
+PROB_BITS = 12
+ONE = 1 << PROB_BITS
+HALF = ONE >> 1
+RATE = 4
+TOP = 1 << 24
+
+# enc slots
+LOW = 0
+RANGE = 1
+CACHE = 2
+HELD = 3
+WRITTEN = 4
+OVERFLOW = 5
+ENCODER_STATE = 6
+# dec slots (RANGE as above)
+CODE = 0
+POSITION = 2
+BROKEN = 3
+DECODER_STATE = 4
+
+MAX_EXPONENT = 32
+_PREFIX = MAX_EXPONENT + 1  # unary exponent contexts 0..MAX_EXPONENT
+_TOP_TREE = 3  # per exponent: its first two mantissa bits as a 2-level tree
+INTEGER_SLOTS = _PREFIX + (MAX_EXPONENT + 1) * _TOP_TREE + 1  # + the sign
+UNIFORM_SLOTS = 64
+
+
+# The coding steps allocate nothing and return no array: compiled without reference
+# counting (numba's ``_nrt=False``), a call costs no atomic increments and decrements of
+# its array arguments, which made a coded bit about five times slower.
+_kernel = numba.njit(cache=True, _nrt=False)
+
+
+def new_probs(n_slots: int) -> np.ndarray:
+    """Fresh contexts, every bit equally likely."""
+    return np.full(n_slots, HALF, np.uint16)
+
+
+def new_encoder() -> np.ndarray:
+    enc = np.zeros(ENCODER_STATE, np.int64)
+    enc[RANGE] = 0xFFFFFFFF
+    enc[HELD] = 1
+    enc[WRITTEN] = -1  # the always-zero first byte is dropped
+    return enc
+
+
+@_kernel
+def _put(enc, out, byte):
+    at = enc[WRITTEN]
+    if at >= 0:
+        if at < out.shape[0]:
+            out[at] = byte
+        else:
+            enc[OVERFLOW] = 1
+    enc[WRITTEN] = at + 1
+
+
+@_kernel
+def _shift_low(enc, out):
+    low = enc[LOW]
+    if low < 0xFF000000 or low > 0xFFFFFFFF:
+        carry = low >> 32
+        byte = enc[CACHE]
+        while True:
+            _put(enc, out, (byte + carry) & 0xFF)
+            byte = 0xFF
+            enc[HELD] -= 1
+            if enc[HELD] == 0:
+                break
+        enc[CACHE] = (low >> 24) & 0xFF
+    enc[HELD] += 1
+    enc[LOW] = (low & 0x00FFFFFF) << 8
+
+
+@_kernel
+def encode_bit(enc, out, probs, ctx, bit):
+    p = np.int64(probs[ctx])
+    bound = (enc[RANGE] >> PROB_BITS) * p
+    if bit == 0:
+        enc[RANGE] = bound
+        probs[ctx] = p + ((ONE - p) >> RATE)
+    else:
+        enc[LOW] += bound
+        enc[RANGE] -= bound
+        probs[ctx] = p - (p >> RATE)
+    while enc[RANGE] < TOP:
+        enc[RANGE] <<= 8
+        _shift_low(enc, out)
+
+
+@_kernel
+def encode_direct(enc, out, bit):
+    """A bit with probability 1/2, no context (LZMA's direct bits)."""
+    enc[RANGE] >>= 1
+    if bit:
+        enc[LOW] += enc[RANGE]
+    while enc[RANGE] < TOP:
+        enc[RANGE] <<= 8
+        _shift_low(enc, out)
+
+
+@_kernel
+def finish(enc, out):
+    """Flush; returns the number of bytes written (more than len(out) if it overflowed)."""
+    for _ in range(5):
+        _shift_low(enc, out)
+    return enc[WRITTEN]
+
+
+@numba.njit(cache=True)
+def start_decoder(data, offset):
+    """A decoder over data[offset:] (returns its state)."""
+    dec = np.zeros(DECODER_STATE, np.int64)
+    dec[RANGE] = 0xFFFFFFFF
+    dec[POSITION] = offset
+    for _ in range(4):
+        dec[CODE] = (dec[CODE] << 8) | _next_byte(dec, data)
+    if dec[CODE] >= dec[RANGE]:
+        dec[BROKEN] = 1
+        dec[CODE] = 0
+    return dec
+
+
+@_kernel
+def _next_byte(dec, data):
+    at = dec[POSITION]
+    dec[POSITION] = at + 1
+    if at < data.shape[0]:
+        return np.int64(data[at])
+    dec[BROKEN] = 1
+    return np.int64(0)
+
+
+@_kernel
+def decode_bit(dec, data, probs, ctx):
+    p = np.int64(probs[ctx])
+    bound = (dec[RANGE] >> PROB_BITS) * p
+    if dec[CODE] < bound:
+        dec[RANGE] = bound
+        probs[ctx] = p + ((ONE - p) >> RATE)
+        bit = 0
+    else:
+        dec[CODE] -= bound
+        dec[RANGE] -= bound
+        probs[ctx] = p - (p >> RATE)
+        bit = 1
+    while dec[RANGE] < TOP:
+        dec[RANGE] <<= 8
+        dec[CODE] = (dec[CODE] << 8) | _next_byte(dec, data)
+    return bit
+
+
+@_kernel
+def decode_direct(dec, data):
+    dec[RANGE] >>= 1
+    bit = 0
+    if dec[CODE] >= dec[RANGE]:
+        dec[CODE] -= dec[RANGE]
+        bit = 1
+        if dec[CODE] >= dec[RANGE]:  # only an odd range and a corrupt code get here
+            dec[BROKEN] = 1
+            dec[CODE] = 0
+    while dec[RANGE] < TOP:
+        dec[RANGE] <<= 8
+        dec[CODE] = (dec[CODE] << 8) | _next_byte(dec, data)
+    return bit
+
+
+@_kernel
+def encode_tree(enc, out, probs, base, n_bits, symbol):
+    node = 1
+    for j in range(n_bits - 1, -1, -1):
+        bit = (symbol >> j) & 1
+        encode_bit(enc, out, probs, base + node - 1, bit)
+        node = 2 * node + bit
+
+
+@_kernel
+def decode_tree(dec, data, probs, base, n_bits):
+    node = 1
+    for _ in range(n_bits):
+        node = 2 * node + decode_bit(dec, data, probs, base + node - 1)
+    return node - (1 << n_bits)
+
+
+@_kernel
+def encode_integer(enc, out, probs, base, value, signed):
+    magnitude = abs(value) if signed else value
+    n = magnitude + 1
+    exponent = 0
+    while (n >> (exponent + 1)) != 0:
+        exponent += 1
+    for i in range(exponent):
+        encode_bit(enc, out, probs, base + i, 1)
+    if exponent < MAX_EXPONENT:
+        encode_bit(enc, out, probs, base + exponent, 0)
+    rows = base + _PREFIX + exponent * _TOP_TREE
+    node = 1
+    for j in range(exponent):
+        bit = (n >> (exponent - 1 - j)) & 1
+        if j < 2:
+            encode_bit(enc, out, probs, rows + node - 1, bit)
+            node = 2 * node + bit
+        else:
+            encode_direct(enc, out, bit)
+    if signed and value != 0:
+        encode_bit(enc, out, probs, base + INTEGER_SLOTS - 1, 1 if value < 0 else 0)
+
+
+@_kernel
+def decode_integer(dec, data, probs, base, signed):
+    exponent = 0
+    while exponent < MAX_EXPONENT and decode_bit(dec, data, probs, base + exponent):
+        exponent += 1
+    rows = base + _PREFIX + exponent * _TOP_TREE
+    n = np.int64(1)
+    node = 1
+    for j in range(exponent):
+        if j < 2:
+            bit = decode_bit(dec, data, probs, rows + node - 1)
+            node = 2 * node + bit
+        else:
+            bit = decode_direct(dec, data)
+        n = 2 * n + bit
+    magnitude = n - 1
+    if signed and magnitude != 0 and decode_bit(dec, data, probs, base + INTEGER_SLOTS - 1):
+        return -magnitude
+    return magnitude
+
+
+@_kernel
+def encode_uniform(enc, out, probs, base, value, n):
+    """value in [0, n), n >= 1."""
+    n_bits = 0
+    while ((n - 1) >> n_bits) != 0:
+        n_bits += 1
+    tight = True  # the bits so far equal those of n - 1
+    top = n - 1
+    for j in range(n_bits - 1, -1, -1):
+        bit = (value >> j) & 1
+        if tight and ((top >> j) & 1) == 0:
+            continue  # forced 0
+        encode_bit(enc, out, probs, base + j, bit)
+        if bit == 0:
+            tight = False
+
+
+@_kernel
+def decode_uniform(dec, data, probs, base, n):
+    n_bits = 0
+    while ((n - 1) >> n_bits) != 0:
+        n_bits += 1
+    tight = True
+    top = n - 1
+    value = np.int64(0)
+    for j in range(n_bits - 1, -1, -1):
+        if tight and ((top >> j) & 1) == 0:
+            value = 2 * value
+            continue
+        bit = decode_bit(dec, data, probs, base + j)
+        value = 2 * value + bit
+        if bit == 0:
+            tight = False
+    return value

@@ -310,10 +310,10 @@ def _predict(faces, s, cs, nc, xl, xr, mark, ys, keys):
     xl the walk backwards from xr. xl, xr = -1 when absent."""
     if xl < 0 and xr < 0:
         mark[:nc] = 0
-    elif xl >= 0:
-        _walk(faces, s, cs, nc, xl, True, xr, mark, ys, keys)
-    else:
-        _walk(faces, s, cs, nc, xr, False, -1, mark, ys, keys)
+        return
+    forward = xl >= 0
+    # one call (not one per direction): each distinct call compiles its own copy
+    _walk(faces, s, cs, nc, xl if forward else xr, forward, xr if forward else xl, mark, ys, keys)
 
 
 @_kernel
@@ -701,7 +701,7 @@ def encode_connectivity(
     face = faces_from
     new = 0
     for i in range(k):
-        s = split_vertex[i]
+        s = np.int64(split_vertex[i])  # int64 as in the decoder: the helpers compile once
         t = n_from + i
         cs, nb, mark, ys, keys = _scratch(head, nxt, s, cs, nb, mark, ys, keys)
         nc, nn = _gather(faces, head, nxt, s, cs, nb)

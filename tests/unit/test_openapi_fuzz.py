@@ -77,6 +77,12 @@ def served(tmp_path_factory):
             while (status := app.state.storage.metadata.get(record.id).status) != "ready":
                 assert status != "failed" and time.monotonic() < deadline, status
                 time.sleep(0.05)
+            # The first level and split stream in a process load (or, on a fresh clone,
+            # compile) numba kernels, which on a loaded machine outlasts schemathesis's
+            # 10 s read timeout; this test is about the answers, so pay that up front.
+            for path in ("lod?format=msgpack", "splits"):
+                warm = client.get(f"{BASE_URL}/v1/meshes/{record.id}/{path}", timeout=600)
+                assert warm.status_code == 200, (path, warm.status_code)
             yield client, record.id
     finally:
         asgi.shutdown_lifespans()

@@ -1,7 +1,7 @@
 """Time and memory of the whole qem-lod forest build, beside single peer simplifications.
 
     python -m bench.build_speed [--mesh dragon.ply] [--runs 3] [--fraction 0.02]
-        [--qem-option name=value ...] [--timeout SECONDS]
+        [--qem-option name=value ...] [--timeout SECONDS] [--stages]
 
 Every run is a fresh child process (`bench.measure.measure_in_child`); the clock covers
 the build call (or the peer's simplify call) alone. qem-lod is measured three ways:
@@ -19,6 +19,10 @@ meshoptimizer and PyMeshLab (default options), each simplifying the same mesh on
 --fraction of its referenced vertices, --runs runs. Runs are interleaved (qem warm, qem
 hot, meshoptimizer, pymeshlab, then again) so slow drifts of the machine hit all alike.
 
+With --stages, --runs more hot builds (fresh children) time the stages of the build:
+each stage function of `qem_core.simplify` (STAGES) is wrapped, in the child, by a clock
+that adds up its calls; what build() spends outside them is "other".
+
 Writes bench/results/build-speed.md and merges the mesh's entry into
 bench/results/build-speed.json.
 """
@@ -26,6 +30,7 @@ bench/results/build-speed.json.
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 import tempfile
 from collections.abc import Sequence
@@ -52,6 +57,76 @@ __all__ = ["main", "measure_build_speed"]
 
 PEER_NAMES = ("meshoptimizer", "pymeshlab")
 DEFAULT_FRACTION = 0.02
+
+# The stages --stages times: (label, module, function); the functions are looked up as
+# module globals when build() runs, so wrapping them there times every call.
+STAGES = (
+    ("prepare: validate, weld, duplicate faces, edges, components", "qem_core.simplify",
+     "prepare_mesh_and_edges"),
+    ("quadrics of faces, borders and vertices", "qem_core.simplify", "_initial_complex"),
+    ("vertex -> face lists", "qem_core.simplify", "make_face_lists"),
+    ("first costs and heap (parallel)", "qem_core.simplify", "fill_heap"),
+    ("contraction loop", "qem_core.simplify", "run_contractions"),
+    ("assemble the progressive mesh", "qem_core.simplify", "_assemble"),
+)
+
+
+def time_stages(vertices, faces, option_values: qem_lod.OptionValues) -> dict[str, Any]:
+    """One build with each of STAGES clocked: {"total_s", "stages_s": {label: s}}.
+    Runs in the measuring child (see the module docstring)."""
+    import importlib
+    import time
+
+    spent = {label: 0.0 for label, _, _ in STAGES}
+    wrapped = []
+
+    def clocked(function, label):
+        def call(*args, **kwargs):
+            start = time.perf_counter()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                spent[label] += time.perf_counter() - start
+
+        return call
+
+    for label, module_name, name in STAGES:
+        module = importlib.import_module(module_name)
+        wrapped.append((module, name, getattr(module, name)))
+        setattr(module, name, clocked(getattr(module, name), label))
+    try:
+        start = time.perf_counter()
+        qem_lod.build_progressive_mesh(vertices, faces, option_values)
+        total = time.perf_counter() - start
+    finally:
+        for module, name, function in wrapped:
+            setattr(module, name, function)
+    return {"total_s": total, "stages_s": spent}
+
+
+def measure_stages(mesh: BenchMesh, option_values: qem_lod.OptionValues, runs: int,
+                   timeout_s: float | None) -> dict[str, Any]:
+    """Median seconds of each stage (and of the whole build) over `runs` hot builds."""
+    # Imported by name: run as ``python -m``, this module is __main__, whose functions the
+    # child cannot import.
+    stage_timer = importlib.import_module("bench.build_speed").time_stages
+    totals, per_stage = [], {label: [] for label, _, _ in STAGES}
+    for _ in range(runs):
+        measured = measure_in_child(
+            stage_timer,
+            (mesh.vertices, mesh.faces, option_values),
+            preload=("qem_core",),
+            before=qem_lod.warm_up_build,
+            before_args=(option_values,),
+            timeout_s=timeout_s,
+        )
+        totals.append(measured.result["total_s"])
+        for label, seconds in measured.result["stages_s"].items():
+            per_stage[label].append(seconds)
+    stages = {label: median_of_runs(times) for label, times in per_stage.items()}
+    total = median_of_runs(totals)
+    stages["other (record and heap arrays, Python)"] = max(0.0, total - sum(stages.values()))
+    return {"runs": runs, "total_s": total, "stages_s": stages}
 
 
 class _Series:
@@ -266,6 +341,22 @@ def write_build_speed_report(path: Path, entry: dict[str, Any]) -> None:
         lines += [f"qem-lod: {entry['qem_note']}", ""]
     lines += [*table, "", compile_line, "", "Ratios of medians (above 1: qem-lod is slower):", ""]
     lines += [*ratio_lines, ""]
+    stages = entry.get("stages")
+    if stages:
+        total = stages["total_s"]
+        lines += [
+            f"Stages of a hot build (`--stages`: median of {stages['runs']} fresh children, "
+            f"whole build {format_ms(total)} ms; each stage's own median, so they need not "
+            "add up exactly):",
+            "",
+            *markdown_table(
+                ["stage", "median ms", "share"],
+                [[label, format_ms(seconds), f"{100 * seconds / total:.1f} %"]
+                 for label, seconds in stages["stages_s"].items()],
+                [False, True, True],
+            ),
+            "",
+        ]
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines), encoding="utf-8")
 
@@ -297,6 +388,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="a qem_core.BuildOptions field for the build; repeatable",
     )
     parser.add_argument("--timeout", type=float, default=None, help="seconds per child process")
+    parser.add_argument(
+        "--stages",
+        action="store_true",
+        help="also time the stages of --runs more hot builds (see the module docstring)",
+    )
     parser.add_argument("--out-dir", type=Path, default=RESULTS_DIR)
     args = parser.parse_args(argv)
     if args.runs < 1:
@@ -317,6 +413,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     entry = measure_build_speed(
         mesh, option_values, args.runs, args.fraction, args.timeout, qem_note
     )
+    if args.stages and qem_note is None:
+        entry["stages"] = measure_stages(mesh, option_values, args.runs, args.timeout)
+        _progress(f"{mesh.name} stages: " + ", ".join(
+            f"{label.split(':')[0]} {format_ms(seconds)} ms"
+            for label, seconds in entry["stages"]["stages_s"].items()))
     report_path = args.out_dir / "build-speed.md"
     write_build_speed_report(report_path, entry)
     json_path = args.out_dir / "build-speed.json"

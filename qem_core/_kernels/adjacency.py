@@ -5,6 +5,10 @@ b writes the merged list at the end of the pool (``used`` grows); when the pool 
 ``compact`` rewrites the live runs to the front (meshoptimizer keeps similar flat
 adjacency arrays, rebuilt rather than linked). The same lists hold the candidate pairs of
 each vertex (pairs.py): items of two corners instead of three.
+
+A vertex's run holds its live faces only: a contraction takes each face it kills out of
+the runs of its three corners (``contract.rewrite_faces``), so the kernels that walk a
+run read no ``face_alive``.
 """
 
 from typing import NamedTuple

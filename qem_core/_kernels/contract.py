@@ -141,16 +141,13 @@ class Scratch(NamedTuple):
 
 
 def _prefetch_neighbourhood(vertices, vertex_quadrics, edge_quadrics, face_normals, faces,
-                            face_alive, face_edge, start, count, pool, heap_position, v,
-                            exact):
+                            face_edge, start, count, pool, heap_position, v, exact):
     """Ask for the rows a contraction at v will read (see memory.py): positions and
     quadrics of v's neighbours, normals of its faces, heap positions (and in exact mode
     quadrics) of its edges. A quadric row is 80 bytes: two cache lines."""
     s = start[v]
     for i in range(count[v]):
         f = pool[s + i]
-        if not face_alive[f]:
-            continue
         prefetch(face_normals, f, 0)
         for k in range(3):
             x = faces[f, k]
@@ -208,21 +205,18 @@ def _update_vertex_edges(vertices, vertex_quadrics, vertex_refused, edge_quadric
     s = start[v]
     for i in range(count[v]):
         f = pool[s + i]
-        if face_alive[f]:
-            # The rows these edges hold and their parents: read after the costs below.
-            for k in range(3):
-                row = heap_position[face_edge[f, k]]
-                if row >= 0:
-                    prefetch(heap_entries, row, 0)
-                    prefetch(heap_entries, (row - 1) // 4, 0)
+        # The rows these edges hold and their parents: read after the costs below.
+        for k in range(3):
+            row = heap_position[face_edge[f, k]]
+            if row >= 0:
+                prefetch(heap_entries, row, 0)
+                prefetch(heap_entries, (row - 1) // 4, 0)
     generation[0] += 1
     g = generation[0]
     near[v, NEAR_SCRATCH] = g
     n_retry = 0
     for i in range(count[v]):
         f = pool[s + i]
-        if not face_alive[f]:
-            continue
         corner = corner_of(faces, f, v)
         # The two sides at v: v -> next corner is side ``corner``, previous -> v the other.
         for step in range(1, 3):
@@ -249,9 +243,8 @@ def _update_vertex_edges(vertices, vertex_quadrics, vertex_refused, edge_quadric
 update_vertex_edges = borrowing_kernel(_update_vertex_edges)
 
 
-def _merge_edges(faces, face_alive, face_edge, face_quadrics, edge_quadrics, start, count,
-                 pool, near, generation, heap_entries, heap_position, heap_size, a, b, g,
-                 exact):
+def _merge_edges(faces, face_edge, face_quadrics, edge_quadrics, start, count, pool, near,
+                 generation, heap_entries, heap_position, heap_size, a, b, g, exact):
     """Edge bx merges into ax for every common neighbour x of a and b (gathered in
     generation g): the sides of b's faces take ax's id and bx leaves the heap. Other
     edges bz keep their id: after the relabelling they are az.
@@ -265,8 +258,6 @@ def _merge_edges(faces, face_alive, face_edge, face_quadrics, edge_quadrics, sta
     s = start[b]
     for i in range(count[b]):
         f = pool[s + i]
-        if not face_alive[f]:
-            continue
         corner = corner_of(faces, f, b)
         for step in range(1, 3):
             x = faces[f, (corner + step) % 3]
@@ -287,8 +278,6 @@ def _merge_edges(faces, face_alive, face_edge, face_quadrics, edge_quadrics, sta
     s = start[a]
     for i in range(count[a]):
         f = pool[s + i]
-        if not face_alive[f]:
-            continue
         c0, c1, c2 = faces[f, 0], faces[f, 1], faces[f, 2]
         if c0 != b and c1 != b and c2 != b:
             continue
@@ -323,8 +312,6 @@ def _rewrite_faces(faces, face_alive, start, count, pool, used, a, b, killed, n_
     s = start[a]
     for i in range(count[a]):
         f = pool[s + i]
-        if not face_alive[f]:
-            continue
         c0, c1, c2 = faces[f, 0], faces[f, 1], faces[f, 2]
         if c0 == b or c1 == b or c2 == b:
             face_alive[f] = 0
@@ -338,7 +325,7 @@ def _rewrite_faces(faces, face_alive, start, count, pool, used, a, b, killed, n_
     for i in range(count[b]):
         f = pool[s + i]
         if not face_alive[f]:
-            continue
+            continue  # a face abx, killed above
         for k in range(3):
             if faces[f, k] == b:
                 faces[f, k] = a
@@ -471,11 +458,11 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, s
             return STATUS_NEED_WEDGE_SPACE, steps
         generation[0] += 1
         g = generation[0]
-        facts = gather(faces, face_alive, face_edge, start, count, pool, a, b, near, g)
+        facts = gather(faces, face_edge, start, count, pool, a, b, near, g)
         for v in (a, b):
             prefetch_neighbourhood(vertices, vertex_quadrics, edge_quadrics, face_normals,
-                                   faces, face_alive, face_edge, start, count, pool,
-                                   heap_position, v, exact)
+                                   faces, face_edge, start, count, pool, heap_position, v,
+                                   exact)
         remove(heap_entries, heap_position, heap_size, edge)
         prefetch_next(heap_entries, heap_size, start, count, pool, faces, face_edge, 0)
         if edge >= first_pair:
@@ -486,12 +473,12 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, s
         elif near[b, NEAR_TAG_A] != g:
             continue  # no face left on the edge (cannot happen: such edges leave the heap)
         elif preserve_topology and check_link(
-            faces, face_alive, start, count, pool, a, b, near, g, facts
+            faces, start, count, pool, a, b, near, g, facts
         ) != REFUSE_NONE:
             vertex_refused[a] = 1
             vertex_refused[b] = 1
             continue
-        if leaves_a_vertex_bare(faces, face_alive, start, count, pool, near, a, b):
+        if leaves_a_vertex_bare(faces, start, count, pool, near, a, b):
             vertex_refused[a] = 1
             vertex_refused[b] = 1
             continue
@@ -511,14 +498,13 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, s
                 vertex_refused[b] = 1
                 continue
         prefetch_next(heap_entries, heap_size, start, count, pool, faces, face_edge, 1)
-        if not faces_keep_orientation(vertices, faces, face_alive, face_normals, start, count,
-                                      pool, a, b, px, py, pz, cos_step):
+        if not faces_keep_orientation(vertices, faces, face_normals, start, count, pool, a, b,
+                                      px, py, pz, cos_step):
             vertex_refused[a] = 1
             vertex_refused[b] = 1
             continue
-        merge_edges(faces, face_alive, face_edge, face_quadrics, edge_quadrics, start, count,
-                    pool, near, generation, heap_entries, heap_position, heap_size, a, b, g,
-                    exact)
+        merge_edges(faces, face_edge, face_quadrics, edge_quadrics, start, count, pool, near,
+                    generation, heap_entries, heap_position, heap_size, a, b, g, exact)
         if has_pairs:
             merge_pairs(pair_ends, pair_alive, pair_start, pair_count, pair_pool, pair_used,
                         first_pair, heap_entries, heap_position, heap_size, a, b)

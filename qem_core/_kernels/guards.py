@@ -53,14 +53,12 @@ def _turn_ok(vertices, faces, face_normals, f, moved, px, py, pz, cos_step):
 turn_ok = numba.njit(cache=True, inline="always")(_turn_ok)
 
 
-def _faces_keep_orientation(vertices, faces, face_alive, face_normals, start, count, pool,
-                            a, b, px, py, pz, cos_step):
+def _faces_keep_orientation(vertices, faces, face_normals, start, count, pool, a, b, px, py,
+                            pz, cos_step):
     for v, other in ((a, b), (b, a)):
         s = start[v]
         for i in range(count[v]):
             f = pool[s + i]
-            if not face_alive[f]:
-                continue
             if has_corner(faces, f, other):
                 continue  # dies with the contraction
             if not turn_ok(vertices, faces, face_normals, f, v, px, py, pz, cos_step):
@@ -71,19 +69,16 @@ def _faces_keep_orientation(vertices, faces, face_alive, face_normals, start, co
 faces_keep_orientation = borrowing_kernel(_faces_keep_orientation)
 
 
-def _leaves_a_vertex_bare(faces, face_alive, start, count, pool, near, a, b):
+def _leaves_a_vertex_bare(faces, start, count, pool, near, a, b):
     """Would contracting a and b leave a vertex with no face? A level must use every one
     of its vertices. It cannot happen on a manifold under the link condition; it can
     once pairs have joined parts, or without the link condition: all faces of an
     opposite vertex x may be faces abx (a lone triangle, faces doubled by a join), or
-    a and b may have no other face. ``count`` holds live faces only; ``near`` is
-    gathered for a and b."""
+    a and b may have no other face. ``near`` is gathered for a and b."""
     n_dying = 0
     s = start[a]
     for i in range(count[a]):
         f = pool[s + i]
-        if not face_alive[f]:
-            continue
         c0, c1, c2 = faces[f, 0], faces[f, 1], faces[f, 2]
         if c0 != b and c1 != b and c2 != b:
             continue
@@ -94,7 +89,7 @@ def _leaves_a_vertex_bare(faces, face_alive, start, count, pool, near, a, b):
         dying_at_x = 0
         for j in range(count[a]):
             h = pool[s + j]
-            if face_alive[h] and (faces[h, 0] == x or faces[h, 1] == x or faces[h, 2] == x) and (
+            if (faces[h, 0] == x or faces[h, 1] == x or faces[h, 2] == x) and (
                 faces[h, 0] == b or faces[h, 1] == b or faces[h, 2] == b
             ):
                 dying_at_x += 1

@@ -74,8 +74,7 @@ FACT_COMMON_NOT_OPPOSITE = 4  # a common neighbour of a and b spans no face abx
 FACT_B_FACE_ON_OPPOSITES = 8  # a face bxy without a over two opposite vertices x, y
 
 
-def _count_edges(faces, face_alive, face_edge, start, count, pool, v, other, near, column,
-                 g):
+def _count_edges(faces, face_edge, start, count, pool, v, other, near, column, g):
     """For each neighbour x of v: near[x, column + 1] = live faces containing edge v-x,
     near[x, column + 2] = that edge's id; near[x, column] = g marks them valid.
 
@@ -89,8 +88,6 @@ def _count_edges(faces, face_alive, face_edge, start, count, pool, v, other, nea
     s = start[v]
     for i in range(count[v]):
         f = pool[s + i]
-        if not face_alive[f]:
-            continue
         has_other = False
         n_opposite = 0
         for k in range(3):
@@ -131,25 +128,21 @@ def _count_edges(faces, face_alive, face_edge, start, count, pool, v, other, nea
 count_edges = numba.njit(cache=True, inline="always")(_count_edges)
 
 
-def _gather(faces, face_alive, face_edge, start, count, pool, a, b, near, g):
+def _gather(faces, face_edge, start, count, pool, a, b, near, g):
     """Fill the neighbourhood of a and b for generation g; returns the FACT_* bits that
     ``check_link`` needs (one pass over the faces of each end, instead of one per rule)."""
-    facts = count_edges(faces, face_alive, face_edge, start, count, pool, a, b, near,
-                        NEAR_TAG_A, g)
-    return facts | count_edges(faces, face_alive, face_edge, start, count, pool, b, a, near,
-                               NEAR_TAG_B, g)
+    facts = count_edges(faces, face_edge, start, count, pool, a, b, near, NEAR_TAG_A, g)
+    return facts | count_edges(faces, face_edge, start, count, pool, b, a, near, NEAR_TAG_B, g)
 
 
 gather = borrowing_kernel(_gather)
 
 
-def _has_face_on_opposites(faces, face_alive, start, count, pool, v, other, near, g):
+def _has_face_on_opposites(faces, start, count, pool, v, other, near, g):
     """Does v have a live face vxy (not containing ``other``) with x, y both opposite?"""
     s = start[v]
     for i in range(count[v]):
         f = pool[s + i]
-        if not face_alive[f]:
-            continue
         n_opposite = 0
         has_other = False
         for k in range(3):
@@ -166,7 +159,7 @@ def _has_face_on_opposites(faces, face_alive, start, count, pool, v, other, near
 has_face_on_opposites = numba.njit(cache=True, inline="always")(_has_face_on_opposites)
 
 
-def _check_link(faces, face_alive, start, count, pool, a, b, near, g, facts):
+def _check_link(faces, start, count, pool, a, b, near, g, facts):
     """One of the REFUSE_* codes for contracting a and b (gathered in generation g, with
     the FACT_* bits ``gather`` returned)."""
     if near[b, NEAR_TAG_A] != g:
@@ -176,7 +169,7 @@ def _check_link(faces, face_alive, start, count, pool, a, b, near, g, facts):
         return REFUSE_LINK
     # Edges of Lk a ∩ Lk b: faces axy and bxy over two opposite vertices x, y.
     if facts & FACT_B_FACE_ON_OPPOSITES and has_face_on_opposites(
-        faces, face_alive, start, count, pool, a, b, near, g
+        faces, start, count, pool, a, b, near, g
     ):
         return REFUSE_LINK
     if facts & FACT_A_BORDER and facts & FACT_B_BORDER:
@@ -187,8 +180,6 @@ def _check_link(faces, face_alive, start, count, pool, a, b, near, g, facts):
         s = start[b]
         for i in range(count[b]):
             f = pool[s + i]
-            if not face_alive[f]:
-                continue
             for k in range(3):
                 x = faces[f, k]
                 if x == a or x == b:

@@ -9,6 +9,7 @@ qem info FILE.qpm [--json]                           counts, error curve, sizes,
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import time
 from pathlib import Path
@@ -60,8 +61,8 @@ def _add_build_arguments(parser: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="NAME=VALUE",
-        help="a build option (weighting, error_mode, boundary_weight, preserve_topology, "
-        "max_face_turn_deg, merge_coincident); repeatable",
+        help="a build option, repeatable: "
+        + ", ".join(field.name for field in dataclasses.fields(qem_core.BuildOptions)),
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 

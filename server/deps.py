@@ -21,12 +21,14 @@ from .storage import Storage
 __all__ = [
     "CacheDep",
     "JobsDep",
+    "KnownQueryOnly",
     "SettingsDep",
     "StorageDep",
     "WriterDep",
     "app_settings",
     "lod_cache",
     "job_queue",
+    "refuse_unknown_query",
     "require_writer",
     "storage",
 ]
@@ -85,3 +87,30 @@ def require_writer(
 
 
 WriterDep = Annotated[None, Depends(require_writer)]
+
+
+def refuse_unknown_query(request: Request) -> None:
+    """Refuse query parameters the endpoint does not take, as uploads do (their model
+    forbids extras): a misspelt ``?vertex=500`` would otherwise get the full mesh with a
+    200, and the client would never learn its parameter was dropped."""
+    route = request.scope["route"]
+    known = _query_names(route.dependant)
+    unknown = sorted(set(request.query_params) - known)
+    if unknown:
+        takes = ", ".join(sorted(known)) or "none"
+        raise Problem(
+            "invalid-request",
+            f"unknown query parameter(s) {', '.join(map(repr, unknown))}; "
+            f"{route.path} takes: {takes}",
+        )
+
+
+def _query_names(dependant) -> set[str]:
+    """The query parameter names (aliases) an endpoint and its dependencies declare."""
+    names = {field.alias for field in dependant.query_params}
+    for sub_dependant in dependant.dependencies:
+        names |= _query_names(sub_dependant)
+    return names
+
+
+KnownQueryOnly = Depends(refuse_unknown_query)

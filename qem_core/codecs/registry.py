@@ -20,6 +20,7 @@ from ..mesh import Mesh
 from ..prepare import validate_mesh_arrays
 from ..quantise import QuantisedWedges
 from ._corners import checked_corner_uvs, finite_float32
+from ._images import image_media_type
 from .glb import is_glb, read_glb, write_glb
 from .msgpack_mesh import is_msgpack_mesh, read_msgpack, write_msgpack
 from .obj import read_obj, write_obj
@@ -81,7 +82,8 @@ def load_mesh(source: MeshSource, format: str | None = None, name: str | None = 
     InvalidMeshError for unusable content (no vertices or faces, NaN or infinite
     coordinates, face indices out of range). Messages name the bad value. Nothing is
     allocated in proportion to counts a header declares before they are checked
-    against the file's size. OSError if a path cannot be read.
+    against the file's size. OSError if a path cannot be read. A texture image that is
+    not PNG or JPEG is left out (the UVs stay): see `_servable_texture`.
     """
     data, source_name = _read_source(source)
     name = name if name is not None else source_name
@@ -104,9 +106,19 @@ def load_mesh(source: MeshSource, format: str | None = None, name: str | None = 
         faces=faces,
         vertex_attributes=attributes,
         corner_uvs=corner_uvs,
-        texture=mesh.texture,
+        texture=_servable_texture(mesh.texture),
         name=name if name is not None else mesh.name,
     )
+
+
+def _servable_texture(texture: bytes | None) -> bytes | None:
+    """The texture if it is PNG or JPEG, else None: those are what glTF embeds and a
+    browser decodes everywhere. Another image (KTX2, WebP through an extension) is left
+    out rather than refusing the mesh, whose UVs stay; keeping it would make every GLB
+    level of the mesh fail to encode."""
+    if texture is not None and image_media_type(texture) is None:
+        return None
+    return texture
 
 
 def decode_msgpack_mesh(data: bytes) -> Mesh:

@@ -4,7 +4,7 @@ Levels, split streams and textures of a built mesh never change (a .qpm key name
 build), so their responses carry a strong ETag derived from the .qpm key, the level and
 the format (and the split stream's version, whose frames and grids the msgpack levels
 and streams follow), are cacheable for a year, and answer ``If-None-Match`` with 304
-without loading anything.
+without loading anything (a texture once its mesh is known to have one).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from qem_core import codecs
 from qem_core import stream as split_stream
 
 from .. import __version__
-from ..deps import CacheDep, JobsDep, SettingsDep, StorageDep, WriterDep
+from ..deps import CacheDep, JobsDep, KnownQueryOnly, SettingsDep, StorageDep, WriterDep
 from ..problems import Problem, problem_responses
 from ..schemas import (
     LodFormat,
@@ -178,6 +178,7 @@ def get_mesh(mesh_id: str, storage: StorageDep, response: Response) -> MeshInfo:
 
 @router.get(
     "/{mesh_id}/lod",
+    dependencies=[KnownQueryOnly],
     summary="The mesh at a level of detail",
     response_class=Response,
     responses={
@@ -227,11 +228,12 @@ def get_lod(
 
 @router.get(
     "/{mesh_id}/splits",
+    dependencies=[KnownQueryOnly],
     summary="The vertex splits refining one level to another, streamed",
     response_class=StreamingResponse,
     responses={
         200: {
-            "description": "msgpack frames of vertex splits (see docs/wire-format)",
+            "description": "msgpack frames of vertex splits (see docs/formats.md)",
             "content": {split_stream.MEDIA_TYPE: {}},
         },
         304: {"description": "not modified (If-None-Match)"},
@@ -298,16 +300,18 @@ def get_texture(
     problem ``texture-not-found`` when the mesh has none (an OBJ upload does not bring
     the image its material names)."""
     record = _find_ready(storage, mesh_id)
-    etag = _etag(record, "texture")
-    if _matches(if_none_match, etag):
-        return _not_modified(etag, {})
+    # Whether there is a texture first: ``If-None-Match: *`` on a mesh without one is a
+    # 404, not a 304 (the progressive mesh is cached, so this rarely loads anything).
     pm = cache.progressive_mesh(record)
     if pm.texture is None:
         raise Problem("texture-not-found", f"mesh {mesh_id} has no texture image")
+    etag = _etag(record, "texture")
+    if _matches(if_none_match, etag):
+        return _not_modified(etag, {})
     return Response(
         pm.texture,
         media_type=pm.texture_type,
-        headers={"ETag": etag, "Cache-Control": IMMUTABLE},
+        headers={"ETag": etag, "Cache-Control": IMMUTABLE, "X-Content-Type-Options": "nosniff"},
     )
 
 

@@ -145,6 +145,20 @@ def test_glb_splits_seams_into_valid_glTF(spot):
     )
 
 
+def test_a_texture_that_is_not_png_or_jpeg_is_left_out(spot):
+    # Another exporter's GLB may embed a WebP or KTX2 image: the mesh and its UVs load,
+    # the image is dropped (a level could not re-embed it), for GLB and msgpack alike.
+    mesh = Mesh(spot.vertices, spot.faces, corner_uvs=spot.corner_uvs, texture=PNG)
+    webp = b"RIFF\0\0\0\0WEBP"
+    for fmt in ("glb", "msgpack"):
+        blob = write_mesh(mesh, fmt)
+        assert blob.count(PNG) == 1
+        loaded = load_mesh(blob.replace(PNG, webp + PNG[len(webp):]), format=fmt)
+        assert loaded.texture is None
+        np.testing.assert_allclose(loaded.corner_uvs, spot.corner_uvs, atol=GLB_UV_TOLERANCE)
+        assert write_mesh(loaded, "glb")  # and its levels still encode
+
+
 def test_glb_with_seams_loads_in_trimesh(spot):
     trimesh = pytest.importorskip("trimesh")
     mesh = Mesh(spot.vertices, spot.faces, corner_uvs=spot.corner_uvs, texture=PNG)

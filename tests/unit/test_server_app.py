@@ -357,12 +357,34 @@ def test_bad_lod_parameters(client, sphere, params):
     assert_problem(client.get(f"/v1/meshes/{sphere['id']}/lod", params=params), 422)
 
 
+@pytest.mark.parametrize(
+    "path, params, named",
+    [
+        ("/lod", {"vertex": 50}, "'vertex'"),
+        ("/lod", {"vertices": 50, "fmt": "obj"}, "'fmt'"),
+        ("/splits", {"from": 20, "too": 50}, "'too'"),
+    ],
+)
+def test_unknown_query_parameters_are_refused(client, sphere, path, params, named):
+    # A misspelt parameter must not quietly serve the full mesh with a 200.
+    response = client.get(f"/v1/meshes/{sphere['id']}{path}", params=params)
+    detail = assert_problem(response, 422, "invalid-request")["detail"]
+    assert named in detail and "takes:" in detail
+
+
+def test_texture_of_a_mesh_without_one(client, sphere):
+    url = f"/v1/meshes/{sphere['id']}/texture"
+    assert_problem(client.get(url), 404, "texture-not-found")
+    # Not a 304: there is nothing the client could hold.
+    assert_problem(client.get(url, headers={"If-None-Match": "*"}), 404, "texture-not-found")
+
+
 def test_splits_only_refine(client, sphere):
     response = client.get(f"/v1/meshes/{sphere['id']}/splits", params={"from": 50, "to": 20})
     assert "only refine" in assert_problem(response, 422)["detail"]
 
 
-@pytest.mark.parametrize("path", ["", "/lod", "/splits"])
+@pytest.mark.parametrize("path", ["", "/lod", "/splits", "/texture"])
 def test_unknown_id(client, path):
     assert_problem(client.get(f"/v1/meshes/0000000000000000{path}"), 404, "mesh-not-found")
 

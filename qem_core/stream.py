@@ -43,6 +43,7 @@ from ._kernels.stream_coding import (
     BAD_BACK,
     BAD_CODE,
     BAD_COUNT,
+    BAD_POSITION,
     BAD_THIRD,
     BAD_VERTEX,
     CONTEXT_SLOTS,
@@ -88,18 +89,25 @@ __all__ = [
 MEDIA_TYPE = "application/x-qem-splits"
 STREAM_VERSION = 3
 # Frames grow from FIRST_FRAME_SPLITS to SPLITS_PER_FRAME splits (doubling), so that a
-# viewer refines early in the stream (each frame starts its contexts afresh, so the
-# first ones cost a little more).
+# viewer refines early in the stream: it gets a first level after a small frame.
 FIRST_FRAME_SPLITS = 512
 SPLITS_PER_FRAME = 8192
 _FRAME_LIMIT = 64 << 20
 # What a decoder allocates for one frame is bounded: at most this many splits and new
 # faces (a frame of 8192 splits has about 16,000), and at most _ITEMS_PER_BYTE of either
-# per coded byte (a split codes at least 6 decisions, a face at least 3, and a decision
-# costs at least 1/177 bit: 512 per byte is well above what any encoder can reach).
+# per coded byte: a decision costs at least -log2(4081/4096), about 1/189 bit
+# (range_coder.py), so a byte holds at most 1512 decisions; a split codes at least 6
+# (at most 252 splits a byte) and a face at least 3 (at most 504 faces a byte), under
+# the 512 allowed.
 FRAME_SPLIT_LIMIT = 1 << 16
 FRAME_FACE_LIMIT = 1 << 22
 _ITEMS_PER_BYTE = 512
+# The position grid's bits a frame may carry (``grid_for``'s range).
+_MIN_BITS, _MAX_BITS = 8, 24
+# Two grids are the same when each origin and step agrees to this relative tolerance
+# (as the viewer's checkGrid and sameGrid): the float64 values of one grid, written and
+# read back, are equal; another box is not.
+_GRID_TOLERANCE = 1e-9
 # The wedge fields likewise: at most FRAME_WEDGE_LIMIT symbols + backs + values, and at
 # most _WEDGE_ITEMS_PER_BYTE per coded byte of ``wedges`` (each is at least one decision,
 # at least 1/189 bit: 1512 per byte at most).
@@ -109,9 +117,33 @@ _WEDGE_ITEMS_PER_BYTE = 2048
 
 def grid_for(pm: ProgressiveMesh, bits: int = 16) -> Grid:
     """The grid over every position ``pm`` uses (coarse levels may leave the input box)."""
-    if not isinstance(bits, int) or not 8 <= bits <= 24:
-        raise InvalidOptionsError(f"bits={bits!r} must be an integer in [8, 24]")
+    if not _grid_bits(bits):
+        raise InvalidOptionsError(f"bits={bits!r} must be an integer in [{_MIN_BITS}, {_MAX_BITS}]")
     return Grid.over_box(*pm.position_bounds, bits)
+
+
+def _grid_bits(bits) -> bool:
+    """Whether ``bits`` is grid bits a stream may use (an int, not a bool)."""
+    return isinstance(bits, int) and not isinstance(bits, bool) and _MIN_BITS <= bits <= _MAX_BITS
+
+
+def _close(a, b) -> bool:
+    """Whether the numbers of a and b agree to _GRID_TOLERANCE (relative)."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    scale = np.maximum(np.maximum(np.abs(a), np.abs(b)), 1e-300)
+    return a.shape == b.shape and bool(np.all(np.abs(a - b) <= _GRID_TOLERANCE * scale))
+
+
+def _same_grid(a: Grid, b: Grid) -> bool:
+    return a.bits == b.bits and _close(a.origin, b.origin) and _close(a.step, b.step)
+
+
+def _same_attribute_grid(a: AttributeGrid, b: AttributeGrid) -> bool:
+    return (
+        (a.names, a.widths, a.bits) == (b.names, b.widths, b.bits)
+        and _close(a.origin, b.origin)
+        and _close(a.step, b.step)
+    )
 
 
 class FrameSymbols(NamedTuple):
@@ -142,16 +174,11 @@ def range_code_fields(
     if probs is None:
         probs = new_contexts()
     capacity = 64 + 16 * symbols.split_back.shape[0] + 8 * symbols.face_codes.shape[0]
-    while True:
-        out = np.empty(capacity, np.uint8)
-        enc = range_coder.new_encoder()
-        trial = probs.copy()
-        code_splits(enc, out, trial, fields, *symbols[:-1])
-        written = range_coder.finish(enc, out)
-        if written <= capacity:
-            probs[:] = trial
-            return out[:written].tobytes()
-        capacity = 2 * written
+    return _range_coded(
+        lambda enc, out, trial: code_splits(enc, out, trial, fields, *symbols[:-1]),
+        capacity,
+        probs,
+    )
 
 
 def range_code_wedges(fields: WedgeArrays, probs: np.ndarray | None = None) -> bytes:
@@ -165,11 +192,27 @@ def range_code_wedges(fields: WedgeArrays, probs: np.ndarray | None = None) -> b
     if probs is None:
         probs = new_wedge_contexts(rows.shape[1])
     capacity = 64 + 2 * counts.size + symbols.shape[0] + 8 * backs.shape[0] + 8 * rows.size
+    return _range_coded(
+        lambda enc, out, trial: code_wedge_fields(enc, out, trial, counts, symbols, backs, rows),
+        capacity,
+        probs,
+    )
+
+
+def _range_coded(code, capacity: int, probs: np.ndarray) -> bytes:
+    """The bytes ``code(enc, out, contexts)`` writes (a coding kernel called on a fresh
+    encoder; it returns 0, or 1 for a value the coder cannot take), first into
+    ``capacity`` bytes, again into twice what it wrote when that overflowed (the coder
+    counts on past the end). ``probs`` is updated once, with the run that fit."""
     while True:
-        out = np.empty(capacity, np.uint8)
+        out = np.zeros(capacity, np.uint8)
         enc = range_coder.new_encoder()
         trial = probs.copy()
-        code_wedge_fields(enc, out, trial, counts, symbols, backs, rows)
+        if code(enc, out, trial):
+            raise ValueError(
+                "a field holds an integer the range coder cannot code (negative where "
+                f"unsigned, or over {range_coder.MAX_MAGNITUDE} in magnitude)"
+            )
         written = range_coder.finish(enc, out)
         if written <= capacity:
             probs[:] = trial
@@ -292,17 +335,18 @@ def _wedge_body(
 
 
 def _wedge_fields(
-    body: dict, k: int, previous: np.ndarray | None
-) -> tuple[AttributeGrid, int, WedgeArrays, np.ndarray]:
-    """The grid, wedges_from and decoded arrays of a frame's wedge keys, and the contexts
-    they leave (KeyError, TypeError... on a missing or mistyped key, CorruptFileError on
-    counts the bytes cannot hold or bytes that do not decode). ``previous``: the wedge
-    contexts the stream's previous frame left, for a frame that continues it (else
-    None: fresh contexts)."""
+    body: dict, k: int, previous: np.ndarray | None, held: AttributeGrid, n_wedges: int
+) -> tuple[WedgeArrays, np.ndarray]:
+    """The decoded arrays of a frame's wedge keys and the contexts they leave (KeyError,
+    TypeError... on a missing or mistyped key, CorruptFileError on a grid other than
+    ``held`` (the grid of the wedges the decoder holds), a ``wedges_from`` other than
+    their number ``n_wedges``, counts the bytes cannot hold or bytes that do not decode;
+    in the order of wedges.js). ``previous``: the wedge contexts the stream's previous
+    frame left, for a frame that continues it (else None: fresh contexts)."""
     try:
         grid = AttributeGrid.from_dict(body["wedge_grid"])
-    except (ValueError, AttributeError) as error:
-        raise CorruptFileError(f"split frame: bad 'wedge_grid' ({error})") from None
+    except (ValueError, TypeError, KeyError, AttributeError) as error:
+        raise CorruptFileError(f"split frame: bad 'wedge_grid' ({error!r})") from None
     width = int(sum(grid.widths))
     wedges_from, n_symbols = body["wedges_from"], body["n_wedge_symbols"]
     n_backs, n_rows = body["n_wedge_backs"], body["n_wedge_rows"]
@@ -317,12 +361,15 @@ def _wedge_fields(
             f"split frame: the coded wedges ({coded.shape[0]} bytes) cannot hold {n_symbols} "
             f"symbols, {n_backs} backs and {n_rows} value rows"
         )
-    if previous is None:
-        probs = new_wedge_contexts(width)
-    elif previous.shape[0] == wedge_context_slots(width):
-        probs = previous.copy()
-    else:
-        raise CorruptFileError("split frame: its wedge grid has other attributes than the last")
+    if not _same_attribute_grid(grid, held):
+        raise CorruptFileError(
+            f"split frame: its wedge grid ({grid.to_dict()}) is not that of the wedges held "
+            f"({held.to_dict()}): the values would not refine"
+        )
+    if wedges_from != n_wedges:
+        raise CorruptFileError(f"frame refines {wedges_from} wedges, the mesh has {n_wedges}")
+    # The same grid: the contexts the previous frame left have this width's slots.
+    probs = new_wedge_contexts(width) if previous is None else previous.copy()
     status, counts, symbols, backs, rows = decode_wedge_fields(
         coded, k, n_symbols, n_backs, n_rows, width, probs
     )
@@ -332,7 +379,7 @@ def _wedge_fields(
     # allocates wedges for them.
     if int(counts[0].sum() + counts[1].sum()) > n_rows:
         raise CorruptFileError("split frame: more new wedges and updates than value rows")
-    return grid, wedges_from, WedgeArrays(counts, symbols, backs, rows), probs
+    return WedgeArrays(counts, symbols, backs, rows), probs
 
 
 def encode_split_frames(
@@ -343,7 +390,8 @@ def encode_split_frames(
     splits_per_frame: int = SPLITS_PER_FRAME,
     _frame=None,
 ) -> Iterator[bytes]:
-    """Frames of the splits refining lod(n_from) to lod(n_to), generated lazily."""
+    """Frames of the splits refining lod(n_from) to lod(n_to), generated lazily; the
+    arguments are checked at once (InvalidOptionsError), before the first frame."""
     grid = grid_for(pm, bits)
     if not 1 <= splits_per_frame <= FRAME_SPLIT_LIMIT:
         raise InvalidOptionsError(
@@ -352,6 +400,13 @@ def encode_split_frames(
     n_from, n_to = pm.clamp(n_from), pm.clamp(n_to)
     if n_from > n_to:
         raise InvalidOptionsError(f"from={n_from} must not exceed to={n_to}")
+    return _split_frames(pm, n_from, n_to, grid, splits_per_frame, _frame)
+
+
+def _split_frames(
+    pm: ProgressiveMesh, n_from: int, n_to: int, grid: Grid, splits_per_frame: int, _frame
+) -> Iterator[bytes]:
+    """encode_split_frames' generator, its arguments checked."""
     vertices, faces = pm.lod(n_from)
     quantised = np.zeros((n_to, 3), np.int64)
     quantised[:n_from] = grid.quantise(vertices)
@@ -407,12 +462,17 @@ def iter_frames(chunks: Iterable[bytes]) -> Iterator[bytes]:
 class SplitStreamDecoder:
     """Refines a mesh held as grid integers by the frames of a split stream.
 
-    Start from lod(n_from) quantised on the stream's grid (``grid_for(pm, bits)``), with
-    its wedges for a mesh with attributes (``quantised_wedges(pm, n_from)``: the wedge
-    of each face corner and the wedges' values on the stream's attribute grid), or from
-    a served msgpack level (`from_msgpack`); feed frame payloads (from ``iter_frames``)
+    Start from lod(n_from) quantised on the stream's grid (``grid_for(pm, bits)``, given
+    as ``grid`` when known), with its wedges for a mesh with attributes
+    (``quantised_wedges(pm, n_from)``: the wedge of each face corner and the wedges'
+    values on the stream's attribute grid), or from a served msgpack level
+    (`from_msgpack`, which knows the grid); feed frame payloads (from ``iter_frames``)
     in order; read ``vertices``, ``faces``, and ``face_wedges``, ``quantised_values``,
     ``wedge_values``. Without starting wedges, a stream's wedge fields are ignored.
+
+    A stream's first frame carries its grid: the decoder refuses one whose grid is not
+    the grid it holds (``grid``, else the grid of the first frame it decoded), and wedge
+    keys whose attribute grid is not that of ``wedges``: the integers would not refine.
     """
 
     def __init__(
@@ -420,10 +480,11 @@ class SplitStreamDecoder:
         quantised_vertices: np.ndarray,
         faces: np.ndarray,
         wedges: QuantisedWedges | None = None,
+        grid: Grid | None = None,
     ) -> None:
         self.quantised = np.asarray(quantised_vertices, np.int64).copy()
         self.faces = np.asarray(faces, np.int32).copy()
-        self.grid: Grid | None = None
+        self.grid: Grid | None = grid
         self._contexts: np.ndarray | None = None  # as the last frame decoded left them
         self._wedge_contexts: np.ndarray | None = None  # the same, of the wedge fields
         self.wedge_grid: AttributeGrid | None = None
@@ -441,13 +502,17 @@ class SplitStreamDecoder:
     @classmethod
     def from_msgpack(cls, data: bytes) -> SplitStreamDecoder:
         """A decoder starting from a level served as msgpack with "u16" positions (the
-        server's ``lod?format=msgpack``), its wedges included when it has some."""
+        server's ``lod?format=msgpack``), its wedges included when it has some, on the
+        grid of the level's ``bbox`` and ``position_bits`` (a stream on another grid is
+        refused)."""
         mesh = read_msgpack(data)
         message = msgpack.unpackb(data)
         if message.get("position_encoding") != "u16":
             raise InvalidOptionsError("the level's positions are not grid integers ('u16')")
         quantised = np.frombuffer(message["positions"], "<u2").reshape(-1, 3)
-        return cls(quantised, mesh.faces, read_msgpack_wedges(data))
+        box = np.asarray(message["bbox"], np.float64)
+        grid = Grid.over_box(box[:3], box[3:], message["position_bits"])
+        return cls(quantised, mesh.faces, read_msgpack_wedges(data), grid)
 
     @property
     def n_vertices(self) -> int:
@@ -498,12 +563,27 @@ class SplitStreamDecoder:
                 grid = self.grid
                 contexts = self._contexts.copy()
             elif continues is False:
+                bits = body["bits"]
+                if not _grid_bits(bits):
+                    raise CorruptFileError(
+                        f"split frame: 'bits' is {bits!r}, not an integer in "
+                        f"[{_MIN_BITS}, {_MAX_BITS}]"
+                    )
                 grid_values = np.asarray(body["grid"], np.float64)
                 # Checked here: a short or non-finite grid would only fail later, when the
                 # caller reads `vertices`, with an unrelated error.
                 if grid_values.shape != (6,) or not np.isfinite(grid_values).all():
                     raise CorruptFileError("split frame: 'grid' must be 6 finite numbers")
-                grid = Grid(grid_values[:3], grid_values[3:], int(body["bits"]))
+                grid = Grid(grid_values[:3], grid_values[3:], bits)
+                if self.grid is not None:
+                    if not _same_grid(grid, self.grid):
+                        raise CorruptFileError(
+                            f"split frame: its grid ({bits} bits, {grid_values.tolist()}) is "
+                            f"not that of the level held ({self.grid.bits} bits, "
+                            f"{[*self.grid.origin.tolist(), *self.grid.step.tolist()]}): "
+                            "the positions would not refine exactly"
+                        )
+                    grid = self.grid
                 contexts = new_contexts()
             else:
                 raise CorruptFileError(f"split frame: 'continues' is {continues!r}")
@@ -522,7 +602,11 @@ class SplitStreamDecoder:
                         "split frame carries no wedges, but the mesh being refined has some"
                     )
                 wedge_fields = _wedge_fields(
-                    body, k, self._wedge_contexts if continues is True else None
+                    body,
+                    k,
+                    self._wedge_contexts if continues is True else None,
+                    self.wedge_grid,
+                    self.quantised_values.shape[0],
                 )
         except CorruptFileError:
             raise
@@ -530,7 +614,7 @@ class SplitStreamDecoder:
             raise CorruptFileError(f"unreadable split frame: {exc}") from None
         wedges = None
         if wedge_fields is not None:
-            wedges = self._wedge_coder(*wedge_fields[:3], n_to, faces_from + n_new)
+            wedges = self._wedge_coder(wedge_fields[0], n_to, faces_from + n_new)
         state = _state(self.faces, n_to, faces_from + n_new)
         if state is None:
             raise CorruptFileError("the mesh being refined has a face naming no vertex")
@@ -540,7 +624,7 @@ class SplitStreamDecoder:
         counts = np.zeros(k, np.int64)
         status, split_vertex, relabel_counts, relabel_faces = decode_connectivity(
             state.faces, faces_from, state.head, state.nxt, n_from, k, n_new, coded, quantised,
-            contexts, born, counts,
+            (1 << grid.bits) - 1, contexts, born, counts,
         )  # fmt: skip
         if status:
             raise CorruptFileError(f"split frame: {_STATUS[status]}")
@@ -549,46 +633,35 @@ class SplitStreamDecoder:
                 n_from, n_to, faces_from, split_vertex, np.zeros((k, 2, 3)), born, counts,
                 np.concatenate([[0], np.cumsum(relabel_counts)]), relabel_faces,
             )  # fmt: skip
-            status = wedges.decode(wedge_fields[2], run)
+            status = wedges.decode(wedge_fields[0], run)
             if status:
                 raise CorruptFileError(f"split frame: {_WEDGE_STATUS.get(status, _STATUS[status])}")
             self.face_wedges = wedges.face_wedges
             self.quantised_values = wedges.values
-            self.wedge_grid = wedges.grid
         self.faces = state.faces
         self.quantised = quantised
         self.grid = grid
         self._contexts = contexts
         if wedge_fields is not None:
-            self._wedge_contexts = wedge_fields[3]
+            self._wedge_contexts = wedge_fields[1]
 
-    def _wedge_coder(
-        self,
-        grid: AttributeGrid,
-        wedges_from: int,
-        fields: WedgeArrays,
-        n_to: int,
-        face_capacity: int,
-    ) -> WedgeCoder:
-        """The wedge side of the level held, with room for what ``fields`` add."""
-        n_wedges = self.quantised_values.shape[0]
-        if wedges_from != n_wedges:
-            raise CorruptFileError(f"frame refines {wedges_from} wedges, the mesh has {n_wedges}")
-        if grid.widths != self.wedge_grid.widths:
-            raise CorruptFileError(
-                "split frame: its wedge grid has other attributes than the mesh being refined"
-            )
+    def _wedge_coder(self, fields: WedgeArrays, n_to: int, face_capacity: int) -> WedgeCoder:
+        """The wedge side of the level held (its grid, which the frame's equals), with
+        room for what ``fields`` add."""
         connectivity = _state(self.faces, n_to, face_capacity)
         if connectivity is None:
             raise CorruptFileError("the mesh being refined has a face naming no vertex")
-        capacity = n_wedges + int(fields.counts[0].sum())
-        return WedgeCoder(grid, connectivity, self.face_wedges, self.quantised_values, capacity)
+        capacity = self.quantised_values.shape[0] + int(fields.counts[0].sum())
+        return WedgeCoder(
+            self.wedge_grid, connectivity, self.face_wedges, self.quantised_values, capacity
+        )
 
 
 def _check_frame_size(n_splits: int, n_new_faces: int, n_bytes: int) -> None:
     """Refuse counts no frame of n_bytes can hold, before allocating for them: every
-    split codes at least six decisions and every face three, each at least 1/177 bit
-    (range_coder), so a frame holds far fewer than _ITEMS_PER_BYTE of either per byte."""
+    split codes at least six decisions and every face three, each at least 1/189 bit
+    (range_coder), so a byte holds at most 252 splits or 504 faces, under
+    _ITEMS_PER_BYTE."""
     if n_splits > FRAME_SPLIT_LIMIT or n_new_faces > FRAME_FACE_LIMIT:
         raise CorruptFileError(
             f"split frame: {n_splits} splits / {n_new_faces} faces, over the limit "
@@ -610,6 +683,7 @@ def _bin(value, length: int | None, name: str) -> bytes:
 _WEDGE_FIELD_STATUS = {
     SHORT_DATA: "the coded wedges end early (truncated or corrupt data)",
     LONG_DATA: "the coded wedges hold bytes past the last value",
+    BAD_VALUE: "a wedge value leaves its grid",
 }
 
 # code_wedges' statuses where they differ from the splits' (its fields are arrays).
@@ -624,6 +698,7 @@ _STATUS = {
     BAD_CODE: "a face code is not 0..6",
     BAD_THIRD: "a third corner is not a neighbour of the split vertex",
     BAD_BACK: "a new face names a vertex that does not exist yet",
+    BAD_POSITION: "a position leaves the grid ([0, 2^bits - 1])",
     SHORT_DATA: "the coded splits end early (truncated or corrupt data)",
     LONG_DATA: "the coded splits hold bytes past the last split",
     NO_CORNER: "a relabelled face has no corner s",

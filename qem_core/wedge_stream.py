@@ -2,8 +2,8 @@
 wedges a client starts from, and the coder that turns a run of wedge splits into the
 frame's wedge arrays and back (``_kernels/wedge_coding.py``).
 
-stream.py serialises the arrays (byte planes, deflate) with the rest of each frame; this
-module never sees bytes. Values travel as integers on a grid per attribute
+stream.py range-codes the arrays (``wedge_coding.code_wedge_fields``) into each frame's
+``wedges`` bytes; this module never sees bytes. Values travel as integers on a grid per attribute
 (`WEDGE_BITS` over the values' range), in the attributes' own units (the progressive
 mesh stores them multiplied by ``AttributeLayout.scales``).
 """

@@ -4,10 +4,10 @@ cached byte) and the integer binarisations the split stream (version 3) codes wi
 Every decision is a bit coded with an adaptive probability from a context: ``probs`` is
 a flat uint16 array of P(bit = 0) in units of 2^-PROB_BITS, each context one slot. A
 coded 0 moves its slot towards ONE by ``(ONE - p) >> RATE``, a 1 towards 0 by
-``p >> RATE`` (the shift update), so p stays in [2^RATE - 1, ONE - 2^RATE + 1] and no
-decision is ever certain: any bit string decodes to something and costs at least
-``-log2(1 - 2^(RATE - PROB_BITS))`` bits (about 1/177 bit), which bounds how many
-decisions a frame of a given size can hold.
+``p >> RATE`` (the shift update), so p stays in [2^RATE - 1, ONE - 2^RATE + 1] =
+[15, 4081] and no decision is ever certain: any bit string decodes to something, and a
+decision costs at least ``-log2(4081 / 4096)`` bits (about 1/189 bit: at most 1512
+decisions per byte), which bounds how many decisions a frame of a given size can hold.
 
 Encoder state ``enc`` (int64, ENCODER_STATE slots): low (33 bits), range (32 bits), the
 cached byte, the number of bytes held back (the cache and the 0xFF bytes a carry may
@@ -33,10 +33,13 @@ Binarisations (one function per kind, the caller picks the contexts):
   the e bits of |v| + 1 below its leading one (the top two with a tree of contexts per
   exponent, the rest direct bits of probability 1/2: they are close to uniform, and an
   adaptive context would cost more than it learns), then the sign of a nonzero v when
-  ``signed``. Magnitudes are at most 2^(MAX_EXPONENT + 1) - 2.
-- ``*_uniform``: v in [0, n) as the bits of v, most significant first, each with the
-  context of its position (slots ``UNIFORM_SLOTS``), stopped early once the prefix
-  already rules out values >= n (then the remaining bits are free: v in [0, n) only).
+  ``signed``. Magnitudes are at most MAX_MAGNITUDE = 2^(MAX_EXPONENT + 1) - 2: the
+  encoder codes nothing and returns 1 for a larger one, or a negative value unsigned
+  (its caller turns that into a status), else 0.
+- ``*_uniform``: v in [0, n) as the bits of v over the bit length of n - 1, most
+  significant first, each with the context of its position (slots ``UNIFORM_SLOTS``);
+  a bit is not coded (it is 0) while the bits so far equal those of n - 1 and that bit
+  of n - 1 is 0, so no value >= n can be coded. n <= 1 codes nothing (v is 0).
 """
 
 import numba
@@ -63,6 +66,7 @@ BROKEN = 3
 DECODER_STATE = 4
 
 MAX_EXPONENT = 32
+MAX_MAGNITUDE = (1 << (MAX_EXPONENT + 1)) - 2
 _PREFIX = MAX_EXPONENT + 1  # unary exponent contexts 0..MAX_EXPONENT
 _TOP_TREE = 3  # per exponent: its first two mantissa bits as a 2-level tree
 INTEGER_SLOTS = _PREFIX + (MAX_EXPONENT + 1) * _TOP_TREE + 1  # + the sign
@@ -229,7 +233,11 @@ def decode_tree(dec, data, probs, base, n_bits):
 
 @_kernel
 def encode_integer(enc, out, probs, base, value, signed):
+    """Returns 0, or 1 (nothing coded) for a magnitude over MAX_MAGNITUDE or a negative
+    value when not ``signed`` (its unary prefix would never end)."""
     magnitude = abs(value) if signed else value
+    if magnitude < 0 or magnitude > MAX_MAGNITUDE:
+        return 1
     n = magnitude + 1
     exponent = 0
     while (n >> (exponent + 1)) != 0:
@@ -249,6 +257,7 @@ def encode_integer(enc, out, probs, base, value, signed):
             encode_direct(enc, out, bit)
     if signed and value != 0:
         encode_bit(enc, out, probs, base + INTEGER_SLOTS - 1, 1 if value < 0 else 0)
+    return 0
 
 
 @_kernel
@@ -274,7 +283,9 @@ def decode_integer(dec, data, probs, base, signed):
 
 @_kernel
 def encode_uniform(enc, out, probs, base, value, n):
-    """value in [0, n), n >= 1."""
+    """value in [0, n); nothing for n <= 1."""
+    if n <= 1:
+        return
     n_bits = 0
     while ((n - 1) >> n_bits) != 0:
         n_bits += 1
@@ -291,6 +302,9 @@ def encode_uniform(enc, out, probs, base, value, n):
 
 @_kernel
 def decode_uniform(dec, data, probs, base, n):
+    """A value in [0, n): 0, reading nothing, for n <= 1."""
+    if n <= 1:
+        return np.int64(0)
     n_bits = 0
     while ((n - 1) >> n_bits) != 0:
         n_bits += 1

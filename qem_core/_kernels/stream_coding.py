@@ -64,7 +64,7 @@ BAD_THIRD = 3
 BAD_BACK = 4
 SHORT_DATA = 5
 LONG_DATA = 6
-BAD_MASK = 7
+BAD_POSITION = 7
 NO_CORNER = 8
 BAD_COUNT = 9
 
@@ -866,7 +866,10 @@ def code_splits(
     """Range-code what ``encode_connectivity`` produced, split by split, in the order
     ``decode_connectivity`` reads it: s, the face count, each face's code and third corner
     (or corners_back), the relabel mask, position_span, the placement, position_mid. Only
-    the fields in the ``fields`` flags are coded (all of them for a frame)."""
+    the fields in the ``fields`` flags are coded (all of them for a frame). Returns 0, or
+    1 when an integer was out of the coder's range (``range_coder.encode_integer``: the
+    output is then wrong)."""
+    bad = 0
     at_face = 0
     at_third = 0
     at_back = 0
@@ -878,7 +881,7 @@ def code_splits(
             _code_s(enc, out, probs, t - split_back[i], t)
         count = new_face_counts[i]
         if fields & FIELD_FACE_COUNTS:
-            rc.encode_integer(enc, out, probs, _COUNT_SLOTS, count, False)
+            bad |= rc.encode_integer(enc, out, probs, _COUNT_SLOTS, count, False)
         previous = 7
         for _ in range(count):
             code = codes[at_face]
@@ -895,7 +898,9 @@ def code_splits(
                 n_backs = 1 if index == ESCAPE else 0
                 if fields & FIELD_THIRD_CORNERS:
                     if step >= 0:
-                        rc.encode_integer(enc, out, probs, _step_row(walk_length), step, False)
+                        bad |= rc.encode_integer(
+                            enc, out, probs, _step_row(walk_length), step, False
+                        )
                     if index >= 0:
                         rc.encode_bit(enc, out, probs, _ESCAPE_SLOT, index == ESCAPE)
                         if index != ESCAPE:
@@ -903,7 +908,7 @@ def code_splits(
                             rc.encode_uniform(enc, out, probs, _third_row(nn), index, nn)
             for _ in range(n_backs):
                 if fields & FIELD_CORNERS_BACK:
-                    rc.encode_integer(enc, out, probs, _BACK_SLOTS, backs[at_back], False)
+                    bad |= rc.encode_integer(enc, out, probs, _BACK_SLOTS, backs[at_back], False)
                 at_back += 1
         nc = context[_NC]
         if fields & FIELD_RELABEL_MASKS and nc:
@@ -918,7 +923,9 @@ def code_splits(
         at_mask += nc
         if fields & FIELD_POSITION_SPAN:
             for n_known in range(3):
-                _code_value(enc, out, probs, positions[i, n_known], position_slots[i, n_known])
+                bad |= _code_value(
+                    enc, out, probs, positions[i, n_known], position_slots[i, n_known]
+                )
         if fields & FIELD_POSITION_MID:
             placement = positions[i, _PLACEMENT]
             rc.encode_bit(enc, out, probs, _PLACE_SLOTS, placement != 0)
@@ -926,14 +933,17 @@ def code_splits(
                 rc.encode_bit(enc, out, probs, _PLACE_SLOTS + 1, placement == 2)
             else:
                 for at in range(_PLACEMENT + 1, POSITION_SYMBOLS):
-                    _code_value(enc, out, probs, positions[i, at], position_slots[i, at])
+                    bad |= _code_value(enc, out, probs, positions[i, at], position_slots[i, at])
+    return bad
 
 
 @_kernel
 def _code_value(enc, out, probs, value, slots):
-    rc.encode_integer(enc, out, probs, slots[0], abs(value), False)
+    """Returns encode_integer's status."""
+    bad = rc.encode_integer(enc, out, probs, slots[0], abs(value), False)
     if value != 0:
         rc.encode_bit(enc, out, probs, slots[1], value < 0)
+    return bad
 
 
 @_kernel
@@ -955,6 +965,7 @@ def decode_connectivity(
     n_new_faces,
     data,
     quantised,
+    q_max,
     probs,
     born_faces,
     face_counts,
@@ -963,9 +974,11 @@ def decode_connectivity(
     the range-coded ``data`` (uint8) with the contexts ``probs`` (fresh, or as the
     previous frame of the stream left them: they are updated) and advances the state
     (faces must have room for n_new_faces more faces, head and quantised for the new
-    vertices). What the wedge side needs of the splits goes to born_faces
-    (>= n_new_faces, 3): the new faces as born, before later splits relabel them, and
-    face_counts (>= n_splits,): each split's new faces.
+    vertices). Every decoded position must lie on the grid, in [0, q_max] = [0, 2^bits -
+    1] per axis (BAD_POSITION otherwise: a decoder holding 32-bit integers, as the
+    viewer's, must not wrap a value that this one refuses). What the wedge side needs of
+    the splits goes to born_faces (>= n_new_faces, 3): the new faces as born, before
+    later splits relabel them, and face_counts (>= n_splits,): each split's new faces.
 
     Returns (status, split_vertex, relabel_counts, relabel_faces): status 0 when the
     splits used every byte of data, exactly n_new_faces faces and only indices in range,
@@ -1115,6 +1128,8 @@ def decode_connectivity(
             else:
                 # a + b = 2 (old + mid) + (e & 1) and b - a = e
                 a = (2 * (old + mid[d]) + (e & 1) - e) >> 1
+            if a < 0 or a > q_max or a + e < 0 or a + e > q_max:
+                return BAD_POSITION, split_vertex, relabel_counts, relabel_faces[:n_relabel]
             quantised[s, d] = a
             quantised[t, d] = a + e
     if dec[rc.BROKEN]:

@@ -72,6 +72,10 @@ BAD_WEDGE = 10
 BAD_WEDGE_CORNER = 11
 BAD_VALUE = 12
 
+# No residual larger than this keeps a value on a grid of at most 16 bits (the decoder
+# refuses one as it reads it, as wedges.js does: the viewer holds 32-bit values).
+RESIDUAL_LIMIT = (1 << 16) - 1
+
 # Cursors into the fields, an int64 array advanced as they are read or written.
 AT_SYMBOL, AT_BACK, AT_ROW = 0, 1, 2
 
@@ -109,10 +113,13 @@ def _row_context(rows, r, d):
 @numba.njit(cache=True)
 def code_wedge_fields(enc, out, probs, counts, symbols, backs, rows):
     """Range-code a frame's wedge fields (counts (3, K), symbols, backs, rows (R, k))
-    in the order ``decode_wedge_fields`` reads them."""
+    in the order ``decode_wedge_fields`` reads them. Returns 0, or 1 when an integer was
+    out of the coder's range (``range_coder.encode_integer``: the output is then
+    wrong)."""
+    bad = 0
     for row in range(3):
         for i in range(counts.shape[1]):
-            rc.encode_integer(
+            bad |= rc.encode_integer(
                 enc, out, probs, _COUNT_SLOTS + row * rc.INTEGER_SLOTS, counts[row, i], False
             )
     previous = 0
@@ -123,10 +130,11 @@ def code_wedge_fields(enc, out, probs, counts, symbols, backs, rows):
             rc.encode_tree(enc, out, probs, _SYMBOL_SLOTS, 8, symbol - 1)
         previous = symbol
     for q in range(backs.shape[0]):
-        rc.encode_integer(enc, out, probs, _BACK_SLOTS, backs[q], False)
+        bad |= rc.encode_integer(enc, out, probs, _BACK_SLOTS, backs[q], False)
     for r in range(rows.shape[0]):
         for d in range(rows.shape[1]):
-            rc.encode_integer(enc, out, probs, _row_context(rows, r, d), rows[r, d], True)
+            bad |= rc.encode_integer(enc, out, probs, _row_context(rows, r, d), rows[r, d], True)
+    return bad
 
 
 @numba.njit(cache=True)
@@ -134,9 +142,9 @@ def decode_wedge_fields(data, k, n_symbols, n_backs, n_rows, width, probs):
     """Inverse of ``code_wedge_fields`` over all of ``data`` (the caller bounds the
     counts first) with the contexts ``probs`` (``wedge_context_slots(width)`` of them,
     fresh or as the stream's previous frame left them: they are updated). Returns
-    (status, counts, symbols, backs, rows): status SHORT_DATA if the fields need more
-    bytes than data has (or data is no coder output), LONG_DATA if they leave bytes
-    unread, else 0."""
+    (status, counts, symbols, backs, rows): status BAD_VALUE as soon as a residual is
+    over RESIDUAL_LIMIT in magnitude, SHORT_DATA if the fields need more bytes than data
+    has (or data is no coder output), LONG_DATA if they leave bytes unread, else 0."""
     dec = rc.start_decoder(data, 0)
     counts = np.zeros((3, k), np.int64)
     symbols = np.zeros(n_symbols, np.uint8)
@@ -165,6 +173,8 @@ def decode_wedge_fields(data, k, n_symbols, n_backs, n_rows, width, probs):
     for r in range(n_rows):
         for d in range(width):
             rows[r, d] = rc.decode_integer(dec, data, probs, _row_context(rows, r, d), True)
+            if abs(rows[r, d]) > RESIDUAL_LIMIT:
+                return BAD_VALUE, counts, symbols, backs, rows
         if dec[rc.BROKEN]:
             return SHORT_DATA, counts, symbols, backs, rows
     if dec[rc.BROKEN]:
@@ -494,7 +504,8 @@ def _code_values(
     at,
 ):
     """The value rows of split i: ws, extra updates (encoding: their record rows in
-    update_rows), new wedges. Returns a status."""
+    update_rows), new wedges. Returns a status: decoding, BAD_VALUE as soon as a value
+    written leaves its grid (each is checked as it is written, as wedges.js does)."""
     values = level.values
     width = values.shape[1]
     row = at[AT_ROW]
@@ -505,6 +516,8 @@ def _code_values(
             return SHORT_DATA
         for q in range(nws):
             values[ws[q]] = before[q] + rows[row + q]
+            if not _in_grid(values, ws[q], level.q_max):
+                return BAD_VALUE
         for e in range(n_updates):
             wedge = n_wedges - backs[at[AT_BACK] + e]
             if wedge < 0 or wedge >= n_wedges:
@@ -523,6 +536,8 @@ def _code_values(
             values[records.update_ids[u]] = records.update_values[u]
         for q in range(nws):
             rows[row + q] = values[ws[q]] - before[q]
+            if not _in_grid(values, ws[q], level.q_max):
+                return BAD_VALUE
     at[AT_BACK] += n_updates
     for j in range(n_new):
         parent = 0 if nws > 0 else -1
@@ -540,9 +555,6 @@ def _code_values(
                 values[wedge, d] = records.new_values[records.new_offsets[i] + j, d]
                 rows[r, d] = values[wedge, d] - predicted
         if not _in_grid(values, wedge, level.q_max):
-            return BAD_VALUE
-    for q in range(nws):
-        if not _in_grid(values, ws[q], level.q_max):
             return BAD_VALUE
     at[AT_ROW] = row + nws + n_updates + n_new
     return 0

@@ -122,3 +122,30 @@ def test_a_code_above_the_range_is_flagged():
     kinds = np.zeros(3, np.int64)
     _, _, broken = _decode(kinds, kinds, np.ones(3, np.int64), np.full(8, 0xFF, np.uint8))
     assert broken
+
+
+def test_uniform_over_at_most_one_value_codes_nothing():
+    """v in [0, n) for n <= 1 is 0 and costs nothing: neither end touches its state or
+    its contexts (n <= 0 used to loop for ever)."""
+    data = np.array([0x12, 0x34, 0x56, 0x78], np.uint8)
+    for n in (1, 0, -1, -(2**40)):
+        enc, out, probs = rc.new_encoder(), np.zeros(16, np.uint8), rc.new_probs(rc.UNIFORM_SLOTS)
+        rc.encode_uniform(enc, out, probs, 0, 0, n)
+        assert np.array_equal(enc, rc.new_encoder()) and (probs == rc.HALF).all()
+        dec = rc.start_decoder(data, 0)
+        before = dec.copy()
+        assert rc.decode_uniform(dec, data, probs, 0, n) == 0
+        assert np.array_equal(dec, before) and (probs == rc.HALF).all()
+
+
+def test_an_integer_out_of_range_is_refused_not_coded():
+    """A negative value unsigned (its unary prefix would never end) or a magnitude over
+    2^33 - 2 (the decoder reads at most 32 ones): encode_integer returns 1 and codes
+    nothing; the callers turn that into an error (test_stream.py)."""
+    for value, signed in ((-1, False), (-(2**40), False), (_LIMIT + 1, False),
+                          (_LIMIT + 1, True), (-(_LIMIT + 1), True)):  # fmt: skip
+        enc, out, probs = rc.new_encoder(), np.zeros(16, np.uint8), rc.new_probs(rc.INTEGER_SLOTS)
+        assert rc.encode_integer(enc, out, probs, 0, value, signed) == 1
+        assert np.array_equal(enc, rc.new_encoder()) and (probs == rc.HALF).all()
+    for value, signed in ((_LIMIT, False), (-_LIMIT, True), (0, False)):
+        assert rc.encode_integer(rc.new_encoder(), out, probs, 0, value, signed) == 0

@@ -20,6 +20,7 @@ from qem_core.stream import (
     grid_for,
     iter_frames,
     quantised_wedges,
+    range_code_fields,
     split_frame_symbols,
 )
 from tests.tiny_meshes import (
@@ -94,11 +95,14 @@ def test_empty_range_has_no_frames(pm):
 def test_requests_are_clamped_and_must_go_from_coarse_to_fine(pm):
     clamped = _decode(pm, -10, 10**9)
     _check_decoded(pm, clamped, pm.n_full)
+    # Refused at the call, not at the first frame asked for.
     with pytest.raises(qem_core.InvalidOptionsError, match="must not exceed"):
-        list(encode_split_frames(pm, pm.n_full, pm.n_base))
-    for bits in (7, 25, 16.0):
+        encode_split_frames(pm, pm.n_full, pm.n_base)
+    for bits in (7, 25, 16.0, True):
         with pytest.raises(qem_core.InvalidOptionsError, match="bits"):
-            list(encode_split_frames(pm, pm.n_base, pm.n_full, bits=bits))
+            encode_split_frames(pm, pm.n_base, pm.n_full, bits=bits)
+    with pytest.raises(qem_core.InvalidOptionsError, match="splits_per_frame"):
+        encode_split_frames(pm, pm.n_base, pm.n_full, splits_per_frame=0)
 
 
 def test_decoder_has_no_grid_before_its_first_frame(pm):
@@ -419,3 +423,113 @@ def test_frames_of_a_stream_go_on_with_the_previous_frames_contexts(big_pm):
     for frame in frames[1:]:
         decoder.feed(frame)
     _check_decoded(pm, decoder, n2)
+
+
+# -- the grid a frame carries, and positions off it ---------------------------------------
+
+
+def _first_frame(pm, n2=None):
+    return next(iter_frames(_frames(pm, pm.n_base, pm.n_base + 20 if n2 is None else n2)))
+
+
+@pytest.mark.parametrize("bits", [99, 7, 25, 0, -16, 16.0, "16", True, None])
+def test_a_first_frame_with_bits_off_their_range_is_refused(pm, bits):
+    """bits must be an integer in [8, 24] (grid_for's range, as refine.js checks)."""
+    with pytest.raises(qem_core.CorruptFileError, match=r"'bits' is .*not an integer in \[8, 24\]"):
+        _fresh_decoder(pm).feed(_rewrite(_first_frame(pm), _with(bits=bits)))
+
+
+def _moved_grid(change):
+    """The frame's grid [origin xyz, step xyz] changed by change(grid list)."""
+    return lambda body: {**body, "grid": change(list(body["grid"]))}
+
+
+@pytest.mark.parametrize("change", [
+    _moved_grid(lambda g: [g[0] + 1.0, *g[1:]]),
+    _moved_grid(lambda g: [*g[:3], g[3] * 2, *g[4:]]),
+    _moved_grid(lambda g: [*g[:5], g[5] * (1 + 1e-7)]),
+    _with(bits=12),
+    _with(bits=24),
+])  # fmt: skip
+def test_a_first_frame_on_another_grid_than_the_one_held_is_refused(pm, change):
+    """A decoder that knows its grid (given, or from a served level) refuses a first frame
+    on another one: the integers it holds would not refine. Agreement to a relative 1e-9
+    (refine.js's tolerance) is the same grid."""
+    payload = _first_frame(pm)
+    vertices, faces = pm.lod(pm.n_base)
+    grid = grid_for(pm)
+    decoder = SplitStreamDecoder(grid.quantise(vertices), faces, grid=grid)
+    with pytest.raises(qem_core.CorruptFileError, match="is not that of the level held"):
+        decoder.feed(_rewrite(payload, change))
+    nearly = _moved_grid(lambda g: [x * (1 + 1e-12) for x in g])
+    decoder.feed(_rewrite(payload, nearly))
+    _check_decoded(pm, decoder, pm.n_base + 20)
+    assert decoder.grid is grid  # the grid held stays
+
+
+def test_a_decoder_keeps_the_grid_of_its_first_frame(pm):
+    """Without a grid given, the first frame's is taken; a later stream's first frame on
+    another grid is refused."""
+    n2 = pm.n_base + 20
+    decoder = _fresh_decoder(pm)
+    decoder.feed(_first_frame(pm))
+    other = next(iter_frames(encode_split_frames(pm, n2, n2 + 10, bits=12)))
+    with pytest.raises(qem_core.CorruptFileError, match="is not that of the level held"):
+        decoder.feed(other)
+    decoder.feed(next(iter_frames(encode_split_frames(pm, n2, n2 + 10))))
+    _check_decoded(pm, decoder, n2 + 10)
+
+
+def test_a_served_level_knows_its_grid(pm):
+    """from_msgpack takes the grid of the level's bbox and position_bits: a stream on
+    another grid (other bits, another box) is refused, the stream's own is decoded."""
+    n1, n2 = pm.n_base + 5, pm.n_base + 25
+    vertices, faces = pm.lod(n1)
+    served = qem_core.encode_mesh(
+        vertices, faces, "msgpack", quantize_bits=16, grid_box=pm.position_bounds
+    )
+    decoder = SplitStreamDecoder.from_msgpack(served)
+    assert decoder.grid.bits == 16 and np.allclose(decoder.grid.step, grid_for(pm).step)
+    payload = next(iter_frames(encode_split_frames(pm, n1, n2)))
+    for change in (_with(bits=12), _moved_grid(lambda g: [g[0] - 0.5, *g[1:]])):
+        with pytest.raises(qem_core.CorruptFileError, match="is not that of the level held"):
+            decoder.feed(_rewrite(payload, change))
+    decoder.feed(payload)
+    _check_decoded(pm, decoder, n2)
+
+
+def off_grid_frame(pm, n2: int, shift: int) -> bytes:
+    """The first frame payload of pm's stream n_base -> n2 (one frame) with the last
+    third position_mid value of a split placed in the middle moved by ``shift``, well
+    range-coded and sealed: that split puts s and t off the grid by about ``shift``
+    along one axis (the decoders refuse it before looking at the later symbols, coded
+    for the true positions)."""
+    (symbols,) = split_frame_symbols(pm, pm.n_base, n2)
+    i = np.flatnonzero(symbols.positions[:, 3] == 0)[-1]
+    symbols.positions[i, 6] += shift
+    body = msgpack.unpackb(_first_frame(pm, n2)[:-4])
+    return _sealed(msgpack.packb({**body, "splits": range_code_fields(symbols)}))
+
+
+@pytest.mark.parametrize("shift", [1 << 32, -(1 << 32), 1 << 20, -(1 << 20), 70_000])
+def test_a_position_off_the_grid_is_refused(pm, shift):
+    """A crafted frame (right CRC) whose split moves a vertex off [0, 2^bits - 1]: refused
+    (refine.js holds 32-bit integers: a shift of 2^32 would wrap to the true position
+    there, so both refuse it, tests/e2e/test_stream_checks_node.py)."""
+    n2 = pm.n_base + 20
+    decoder = _fresh_decoder(pm)
+    decoder.feed(off_grid_frame(pm, n2, 0))  # crafted, unchanged: decodes
+    _check_decoded(pm, decoder, n2)
+    with pytest.raises(qem_core.CorruptFileError, match=r"a position leaves the grid"):
+        _fresh_decoder(pm).feed(off_grid_frame(pm, n2, shift))
+
+
+def test_a_value_the_coder_cannot_take_is_an_error_not_a_hang(pm):
+    """range_coder.encode_integer refuses a negative unsigned value (its unary prefix
+    would never end) and one over 2^33 - 2: the frame's coding raises."""
+    (symbols,) = split_frame_symbols(pm, pm.n_base, pm.n_base + 20)
+    for field, value in (("positions", 1 << 40), ("new_face_counts", -1)):
+        array = getattr(symbols, field).copy()
+        array.flat[0] = value
+        with pytest.raises(ValueError, match="cannot code"):
+            range_code_fields(symbols._replace(**{field: array}))

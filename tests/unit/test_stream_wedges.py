@@ -4,6 +4,7 @@ damaged wedge field is refused with CorruptFileError (flipped bytes and truncati
 frames with wedges: test_stream.py).
 """
 
+import re
 import struct
 import zlib
 
@@ -277,47 +278,63 @@ def _escape_first(backs):
     return change
 
 
-@pytest.mark.parametrize("change", [
-    lambda body: {k: v for k, v in body.items() if not k.startswith("wedge")},
-    _with(wedge_grid="uv"),
-    _field("wedge_grid", lambda g: {**g, "bits": [0]}),
-    _field("wedge_grid", lambda g: {**g, "widths": [3]}),
-    _field("wedge_grid", lambda g: {**g, "step": [float("nan"), 1.0]}),
-    _with(wedges_from=1),
-    _with(wedges_from=-1),
-    _with(n_wedge_rows=-1),
-    _with(n_wedge_symbols="many"),
+@pytest.mark.parametrize(("change", "message"), [
+    (lambda body: {k: v for k, v in body.items() if not k.startswith("wedge")},
+     "carries no wedges"),
+    (_with(wedge_grid="uv"), "bad 'wedge_grid'"),
+    (_field("wedge_grid", lambda g: {**g, "bits": [0]}), "bad 'wedge_grid'"),
+    (_field("wedge_grid", lambda g: {**g, "widths": [3]}), "bad 'wedge_grid'"),
+    (_field("wedge_grid", lambda g: {**g, "step": [float("nan"), 1.0]}), "bad 'wedge_grid'"),
+    (_with(wedges_from=1), "refines 1 wedges"),
+    (_with(wedges_from=-1), "a wedge count is -1"),
+    (_with(n_wedge_rows=-1), "a wedge count is -1"),
+    (_with(n_wedge_symbols="many"), "a wedge count is 'many'"),
     # Counts no coded bytes can hold: refused before anything is allocated.
-    _with(n_wedge_rows=10**6),
-    _with(n_wedge_symbols=10**9),
+    (_with(n_wedge_rows=10**6), "cannot hold"),
+    (_with(n_wedge_symbols=10**9), "cannot hold"),
     # Counts the bytes could hold but do not: the coder runs out, or has bytes left.
-    _with(n_wedge_backs=7),
-    _field("n_wedge_rows", lambda n: n - 1),
-    _with(wedges=b""),
-    _with(wedges="text"),
-    _field("wedges", lambda b: b[:-1]),
-    _field("wedges", lambda b: b + b"\x00"),
-    _field("wedges", lambda b: b"\xff" * len(b)),
+    (_with(n_wedge_backs=7), "the coded wedges hold bytes past"),
+    (_field("n_wedge_rows", lambda n: n - 1), "the coded wedges hold bytes past"),
+    (_with(wedges=b""), "the coded wedges end early"),
+    (_with(wedges="text"), "'wedges' is not"),
+    (_field("wedges", lambda b: b[:-1]), "the coded wedges end early"),
+    (_field("wedges", lambda b: b + b"\x00"), "the coded wedges hold bytes past"),
+    (_field("wedges", lambda b: b"\xff" * len(b)), "the coded wedges end early"),
     # Many new wedges for too few value rows: refused before anything is allocated.
-    _arrays(lambda w: w._replace(counts=np.full_like(w.counts, 1000))),
-    _arrays(lambda w: w._replace(symbols=w.symbols[:-1])),
-    _arrays(lambda w: w._replace(symbols=np.append(w.symbols, np.uint8(0)))),
-    _arrays(lambda w: w._replace(symbols=np.full_like(w.symbols, 0xFE))),
-    # An escape whose back-distance names no wedge, and one with no back-distance.
-    _arrays(_escape_first(np.array([2**31]))),
-    _arrays(_escape_first(np.zeros(0, np.int64))),
-    _arrays(lambda w: w._replace(backs=np.append(w.backs, 1))),
-    _arrays(lambda w: w._replace(rows=w.rows[:-1])),
-    # A residual that takes a value off its grid.
-    _arrays(lambda w: w._replace(rows=np.full_like(w.rows, 5000))),
-    _arrays(lambda w: w._replace(rows=np.full_like(w.rows, -(2**31)))),
+    (_arrays(lambda w: w._replace(counts=np.full_like(w.counts, 1000))),
+     "more new wedges and updates than value rows"),
+    (_arrays(lambda w: w._replace(symbols=w.symbols[:-1])), "a field ends before the splits"),
+    (_arrays(lambda w: w._replace(symbols=np.append(w.symbols, np.uint8(0)))),
+     "a field holds more than the splits use"),
+    (_arrays(lambda w: w._replace(symbols=np.full_like(w.symbols, 0xFE))),
+     "names a wedge that does not exist"),
+    # An escape whose back-distance names no wedge, and one with no back-distance left.
+    (_arrays(_escape_first(np.array([2**31]))), "names a wedge that does not exist"),
+    (_arrays(lambda w: _escape_first(np.zeros(0, np.int64))(w._replace(backs=w.backs[:0]))),
+     "a field ends before the splits"),
+    (_arrays(lambda w: w._replace(backs=np.append(w.backs, 1))),
+     "a field holds more than the splits use"),
+    (_arrays(lambda w: w._replace(rows=w.rows[:-1])), "a field ends before the splits"),
+    # A residual that takes a value off its grid (the second one is refused as it is
+    # read: over 0xffff, as wedges.js refuses it).
+    (_arrays(lambda w: w._replace(rows=np.full_like(w.rows, 5000))),
+     "a wedge value leaves its grid"),
+    (_arrays(lambda w: w._replace(rows=np.full_like(w.rows, -(2**31)))),
+     "a wedge value leaves its grid"),
+    # Another attribute grid than the wedges held: the values would not refine.
+    (_field("wedge_grid", lambda g: {**g, "bits": [16]}), "is not that of the wedges held"),
+    (_field("wedge_grid", lambda g: {**g, "origin": [o + 0.25 for o in g["origin"]]}),
+     "is not that of the wedges held"),
+    (_field("wedge_grid", lambda g: {**g, "step": [3 * x for x in g["step"]]}),
+     "is not that of the wedges held"),
+    (_field("wedge_grid", lambda g: {**g, "names": ["color"]}), "is not that of the wedges held"),
 ])  # fmt: skip
-def test_a_frame_whose_wedges_lie_is_refused(spot_pm, change):
+def test_a_frame_whose_wedges_lie_is_refused(spot_pm, change, message):
     n2 = spot_pm.n_base + 40
     payload = _first_payload(spot_pm, n2)
     decoder = _fresh(spot_pm)
     before = decoder.face_wedges.copy(), decoder.quantised_values.copy(), decoder.faces.copy()
-    with pytest.raises(qem_core.CorruptFileError):
+    with pytest.raises(qem_core.CorruptFileError, match=re.escape(message)):
         decoder.feed(_rewrite(payload, change))
     # A refused frame changes nothing: the good frame still applies.
     assert np.array_equal(decoder.face_wedges, before[0])
@@ -341,3 +358,27 @@ def test_a_frame_for_another_wedge_count_is_refused(spot_pm):
     )
     with pytest.raises(qem_core.CorruptFileError, match="continues a stream"):
         _fresh(spot_pm).feed(frames[1])
+
+
+def test_every_frame_needs_the_wedge_grid_held(spot_pm):
+    """Each frame carries the wedge grid: it must be the grid of the wedges held (to a
+    relative 1e-9, as wedges.js's sameGrid), in a stream's later frames too; the grid
+    held stays."""
+    n2 = spot_pm.n_base + 40
+    frames = list(
+        iter_frames(encode_split_frames(spot_pm, spot_pm.n_base, n2, splits_per_frame=20))
+    )
+    assert len(frames) == 2
+    decoder = _fresh(spot_pm)
+    held = decoder.wedge_grid
+    nearly = _field("wedge_grid", lambda g: {**g, "step": [x * (1 + 1e-12) for x in g["step"]]})
+    decoder.feed(_rewrite(frames[0], nearly))
+    for change in (
+        _field("wedge_grid", lambda g: {**g, "bits": [11]}),
+        _field("wedge_grid", lambda g: {**g, "step": [x * (1 + 1e-7) for x in g["step"]]}),
+    ):
+        with pytest.raises(qem_core.CorruptFileError, match="is not that of the wedges held"):
+            decoder.feed(_rewrite(frames[1], change))
+    decoder.feed(frames[1])
+    _check_decoded(spot_pm, decoder, n2)
+    assert decoder.wedge_grid is held

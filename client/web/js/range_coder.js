@@ -125,8 +125,10 @@ export class RangeDecoder {
     return magnitude;
   }
 
-  /** A value in [0, n), 1 <= n <= 2^32 (range_coder.decode_uniform). */
+  /** A value in [0, n), n <= 2^32 (range_coder.decode_uniform): 0, reading nothing,
+   * for n <= 1. */
   uniform(probs, base, n) {
+    if (n <= 1) return 0;
     const top = n - 1;
     const nBits = 32 - Math.clz32(top);
     let tight = true;

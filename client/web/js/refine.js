@@ -42,6 +42,8 @@ const LAPLACE_BITS = 20;
 const FRAME_SPLIT_LIMIT = 1 << 16; // as qem_core.stream: what one frame may allocate
 const FRAME_FACE_LIMIT = 1 << 22;
 const ITEMS_PER_BYTE = 512;
+const MIN_BITS = 8; // the grid bits a frame may carry (qem_core.stream, grid_for)
+const MAX_BITS = 24;
 // The contexts of the coded fields, slots of one probability array
 // (qem_core/_kernels/stream_coding.py, same layout).
 const ROWS = 21;
@@ -174,12 +176,16 @@ export function decodeBaseMesh(bytes) {
   if (!Array.isArray(bbox) || bbox.length !== 6 || !bbox.every(Number.isFinite)) {
     fail("base mesh: 'bbox' must be 6 finite numbers");
   }
+  const bits = message.position_bits;
+  if (!Number.isInteger(bits) || bits < 1 || bits > 16) {
+    fail(`base mesh: 'position_bits' must be 1..16, got ${bits}`);
+  }
   const texture = message.texture instanceof Uint8Array ? message.texture : null;
   return {
     nVertices,
     nFaces,
     bbox,
-    bits: message.position_bits,
+    bits,
     positions: binArray(message.positions, Uint16Array, 3 * nVertices, "positions"),
     indices: binArray(message.indices, IndexType, 3 * nFaces, "indices"),
     wedges: message.wedges === undefined ? null : decodeBaseWedges(message.wedges, nFaces),
@@ -246,8 +252,12 @@ export function decodeFrame(payload) {
   if (continues !== true && continues !== false) fail(`split frame: 'continues' is ${continues}`);
   if (!continues) {
     // A stream's first frame carries the grid; the next ones go on with it.
-    if (!Number.isInteger(body.bits) || body.bits < 0) fail(`split frame: 'bits' is ${body.bits}`);
-    if (!Array.isArray(body.grid) || body.grid.length !== 6) fail("split frame: bad 'grid'");
+    if (!Number.isInteger(body.bits) || body.bits < MIN_BITS || body.bits > MAX_BITS) {
+      fail(`split frame: 'bits' is ${body.bits}, not an integer in [${MIN_BITS}, ${MAX_BITS}]`);
+    }
+    if (!Array.isArray(body.grid) || body.grid.length !== 6 || !body.grid.every(Number.isFinite)) {
+      fail("split frame: 'grid' must be 6 finite numbers");
+    }
   }
   const k = body.n_to - body.n_from;
   const nNew = body.n_new_faces;
@@ -789,12 +799,20 @@ export class ProgressiveLevels {
     let placement = 0;
     if (coder.bit(probs, PLACE_SLOTS)) placement = 1 + coder.bit(probs, PLACE_SLOTS + 1);
     if (placement === 0) this.decodeMid(coder, probs, normal, bulge, edge, mid, axes, slots);
+    // Every value so far is an exact integer in float64 (the coder's are below 2^34);
+    // the 32-bit buffers take only positions on the grid (decode_connectivity refuses
+    // the others too, so both decoders refuse the same frames).
+    const qMax = 2 ** this.bits - 1;
     for (let axis = 0; axis < 3; axis++) {
       const old = q[3 * s + axis];
       const e = edge[axis];
       if (placement === 1) mid[axis] = old;
       else if (placement === 2) mid[axis] = old - e;
       else mid[axis] = (2 * (old + mid[axis]) + (e & 1) - e) / 2; // a + b = 2 (old + mid) + (e & 1)
+      const a = mid[axis];
+      if (!(a >= 0 && a <= qMax && a + e >= 0 && a + e <= qMax)) {
+        fail("split frame: a position leaves the grid ([0, 2^bits - 1])");
+      }
     }
   }
 

@@ -53,11 +53,16 @@ export function attributeGrid(value, what) {
   return { ...value, width, qMax };
 }
 
+/** Whether two checked attribute grids are the same: names, widths and bits equal,
+ * origins and steps to a relative 1e-9 (qem_core.stream._same_attribute_grid). */
 function sameGrid(a, b) {
   const close = (x, y) => Math.abs(x - y) <= 1e-9 * Math.max(Math.abs(x), Math.abs(y), 1e-300);
   return (
     a.width === b.width &&
-    a.names.every((name, i) => name === b.names[i] && a.bits[i] === b.bits[i]) &&
+    a.names.length === b.names.length &&
+    a.names.every(
+      (name, i) => name === b.names[i] && a.widths[i] === b.widths[i] && a.bits[i] === b.bits[i],
+    ) &&
     a.origin.every((o, d) => close(o, b.origin[d]) && close(a.step[d], b.step[d]))
   );
 }
@@ -164,6 +169,10 @@ export function decodeBaseWedges(entry, nFaces) {
   const corners = binArray(entry.corners, Type, 3 * nFaces, "wedges.corners");
   const values = binArray(entry.values, Uint16Array, count * grid.width, "wedges.values");
   for (const w of corners) if (w >= count) fail("base mesh: a corner names a wedge beyond the count");
+  // As msgpack_mesh.read_msgpack_wedges: every value on its grid.
+  for (let i = 0; i < values.length; i++) {
+    if (values[i] > grid.qMax[i % grid.width]) fail("base mesh: 'wedges' values lie outside their grid");
+  }
   return { grid, count, corners, values };
 }
 
@@ -259,6 +268,8 @@ export class WedgeLevels {
     for (let q = 0; q < nc; q++) if (faces[cs[q]] === s) stays[findSorted(ws, nws, old[q])] = 1;
     let fresh = 0;
     const nCoded = nc + 3 * (face - firstFace);
+    // As code_wedges: the split's symbols are there before any is read.
+    if (f.atSymbol + nCoded > f.symbols.length) fail("split frame: a field ends before the splits do");
     for (let z = 0; z < nCoded; z++) {
       const c = z < nc ? cs[z] : 3 * firstFace + z - nc;
       const v = faces[c];
@@ -285,7 +296,6 @@ export class WedgeLevels {
           predicted = fresh < nNew ? W + fresh : listed[0];
         }
       }
-      if (f.atSymbol >= f.symbols.length) fail("split frame: a field ends before the splits do");
       const symbol = f.symbols[f.atSymbol++];
       let wedge = -1;
       if (symbol === 0) wedge = predicted;
@@ -328,33 +338,42 @@ export class WedgeLevels {
     this.valueOffsets[split + 1] = this.nValueChanges;
   }
 
-  /** The value rows of one split: ws, extra updates, new wedges (code_wedges). */
+  /** The value rows of one split: ws, extra updates, new wedges (code_wedges). Each
+   * value is checked as it is written, as code_wedges does: both refuse the same
+   * frames, and no sum leaves the 32-bit range. */
   decodeValues(split, ws, nws, nUpdates, nNew, mapTo) {
     const f = this.frame;
     const width = this.width;
     const values = this.receivedValues;
     const W = this.nWedges;
+    const qMax = this.grid.qMax;
     const row = (r, d) => f.rows[d * f.nRows + f.atRow + r];
+    const onGrid = (value, d) => {
+      if (!(value >= 0 && value <= qMax[d])) fail("split frame: a wedge value leaves its grid");
+      return value;
+    };
     const before = new Int32Array(nws * width);
     for (let q = 0; q < nws; q++) {
       for (let d = 0; d < width; d++) before[q * width + d] = values[ws[q] * width + d];
     }
+    if (f.atBack + nUpdates > f.backs.length) fail("split frame: a field ends before the splits do");
     const changed = [];
     for (let q = 0; q < nws; q++) {
       let same = true;
       for (let d = 0; d < width; d++) {
-        const value = before[q * width + d] + row(q, d);
+        const value = onGrid(before[q * width + d] + row(q, d), d);
         if (value !== before[q * width + d]) same = false;
         values[ws[q] * width + d] = value;
       }
       if (!same) changed.push([ws[q], before.subarray(q * width, (q + 1) * width)]);
     }
-    if (f.atBack + nUpdates > f.backs.length) fail("split frame: a field ends before the splits do");
     for (let e = 0; e < nUpdates; e++) {
       const wedge = W - f.backs[f.atBack + e];
       if (!(wedge >= 0 && wedge < W)) fail("split frame: a corner or update names a wedge that does not exist");
       const from = values.slice(wedge * width, (wedge + 1) * width);
-      for (let d = 0; d < width; d++) values[wedge * width + d] += row(nws + e, d);
+      for (let d = 0; d < width; d++) {
+        values[wedge * width + d] = onGrid(values[wedge * width + d] + row(nws + e, d), d);
+      }
       changed.push([wedge, from]);
     }
     f.atBack += nUpdates;
@@ -363,22 +382,12 @@ export class WedgeLevels {
       if (parent < 0 && nws > 0) parent = 0;
       for (let d = 0; d < width; d++) {
         const predicted = parent >= 0 ? before[parent * width + d] : 0;
-        const value = predicted + row(nws + nUpdates + j, d);
+        const value = onGrid(predicted + row(nws + nUpdates + j, d), d);
         values[(W + j) * width + d] = value;
         this.values[(W + j) * width + d] = value; // unused below its split: set at once
       }
     }
     for (const [wedge, from] of changed) this.pushValueChange(wedge, from, values);
-    const qMax = this.grid.qMax;
-    const inGrid = (wedge) => {
-      for (let d = 0; d < width; d++) {
-        const value = values[wedge * width + d];
-        if (!(value >= 0 && value <= qMax[d])) fail("split frame: a wedge value leaves its grid");
-      }
-    };
-    for (let q = 0; q < nws; q++) inGrid(ws[q]);
-    for (let j = 0; j < nNew; j++) inGrid(W + j);
-    for (const [wedge] of changed) inGrid(wedge);
     f.atRow += nws + nUpdates + nNew;
     this.nWedges = W + nNew;
   }

@@ -1,0 +1,184 @@
+"""refine.js and wedges.js under node refuse the frames the Python decoder refuses, each
+started from the same msgpack base mesh (``SplitStreamDecoder.from_msgpack`` and the
+viewer's ``decodeBaseMesh``): a first frame on another grid than the base mesh's, grid
+bits off their range, a split that puts a position off the grid (a shift of 2^32 would
+wrap to the true position in the viewer's 32-bit buffers), another wedge grid, a wedge
+residual no 16-bit grid holds; and a base mesh whose wedge values leave their grid.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import struct
+import subprocess
+import zlib
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import pytest
+
+import qem_core
+from qem_core import codecs
+from qem_core.stream import SplitStreamDecoder, encode_split_frames, iter_frames, quantised_wedges
+from tests.tiny_meshes import icosphere, perforated_icosphere
+from tests.unit.test_stream import off_grid_frame
+from tests.wedge_meshes import seamed_mesh, with_wedge_arrays
+
+from .test_viewer import WEB, pm_digest, require_web_packages, run_refine_js
+
+
+@pytest.fixture(scope="module")
+def pm():
+    return qem_core.build(*perforated_icosphere(2, holes=3, seed=7))
+
+
+@pytest.fixture(scope="module")
+def seamed_pm():
+    vertices, faces = icosphere(2, jitter=0.05, seed=4)
+    return qem_core.build_mesh(seamed_mesh(vertices, faces, seed=4))
+
+
+def _sealed(body: dict) -> bytes:
+    """A frame payload of this msgpack map with its right CRC-32."""
+    data = msgpack.packb(body)
+    return data + struct.pack("<I", zlib.crc32(data))
+
+
+def _frame(payload: bytes) -> bytes:
+    return struct.pack("<I", len(payload)) + payload
+
+
+def _refusals(tmp_path: Path, pm, payload: bytes) -> tuple[dict, str | None]:
+    """What refine.js answers for the one-frame stream `payload` on lod(n_base), and the
+    Python decoder's refusal of it on the same base mesh (None if it decodes it)."""
+    answer = run_refine_js(tmp_path, pm, [pm.n_base + 20], stream=_frame(payload))
+    decoder = SplitStreamDecoder.from_msgpack((tmp_path / "base.msgpack").read_bytes())
+    try:
+        decoder.feed(payload)
+    except qem_core.CorruptFileError as error:
+        return answer, str(error)
+    return answer, None
+
+
+def _first_payload(pm) -> bytes:
+    return next(iter_frames(encode_split_frames(pm, pm.n_base, pm.n_base + 20)))
+
+
+def _rewritten(payload: bytes, change) -> bytes:
+    return _sealed(change(msgpack.unpackb(payload[:-4])))
+
+
+@pytest.mark.parametrize("shift", [1 << 32, -(1 << 32), 1 << 20, 70_000])
+def test_both_decoders_refuse_a_position_off_the_grid(tmp_path, pm, shift):
+    answer, python = _refusals(tmp_path, pm, off_grid_frame(pm, pm.n_base + 20, shift))
+    message = "split frame: a position leaves the grid ([0, 2^bits - 1])"
+    assert answer == {"error": f"WireFormatError: {message}", "held": pm.n_base}
+    assert python == message
+
+
+def test_both_decoders_take_the_crafted_frame_unchanged(tmp_path, pm):
+    """off_grid_frame with no shift is the true frame: both decode it."""
+    n2 = pm.n_base + 20
+    answer, python = _refusals(tmp_path, pm, off_grid_frame(pm, n2, 0))
+    assert python is None
+    assert answer[n2] == {"level": n2, "faces": pm.n_faces(n2), "digest": pm_digest(pm, n2)}
+
+
+def _grid(change):
+    return lambda body: {**body, "grid": change(list(body["grid"]))}
+
+
+@pytest.mark.parametrize(
+    ("change", "viewer", "python"),
+    [
+        (_grid(lambda g: [g[0] + 1.0, *g[1:]]), "the split stream's grid", "is not that of"),
+        (_grid(lambda g: [*g[:3], 2 * g[3], *g[4:]]), "the split stream's grid", "is not that of"),
+        (lambda b: {**b, "bits": 12}, "the split stream's grid", "is not that of"),
+        (lambda b: {**b, "bits": 99}, "split frame: 'bits' is 99,", "'bits' is 99,"),
+        (lambda b: {**b, "bits": "16"}, "split frame: 'bits' is 16,", "'bits' is '16',"),
+        (lambda b: {**b, "bits": 7}, "split frame: 'bits' is 7,", "'bits' is 7,"),
+    ],
+    ids=["origin", "step", "other-bits", "bits-99", "bits-str", "bits-7"],
+)
+def test_both_decoders_refuse_a_first_frame_on_another_grid(tmp_path, pm, change, viewer, python):
+    answer, refused = _refusals(tmp_path, pm, _rewritten(_first_payload(pm), change))
+    assert answer["error"].startswith(f"WireFormatError: {viewer}"), answer
+    assert answer["held"] == pm.n_base
+    assert refused is not None and python in refused, refused
+
+
+def _wedge_grid(change):
+    return lambda body: {**body, "wedge_grid": change(dict(body["wedge_grid"]))}
+
+
+@pytest.mark.parametrize(
+    ("change", "viewer", "python"),
+    [
+        (
+            _wedge_grid(lambda g: {**g, "origin": [x + 0.25 for x in g["origin"]]}),
+            "the split stream's wedge grid is not the base mesh's",
+            "is not that of the wedges held",
+        ),
+        (
+            _wedge_grid(lambda g: {**g, "names": g["names"][::-1], "widths": g["widths"][::-1]}),
+            "the split stream's wedge grid is not the base mesh's",
+            "is not that of the wedges held",
+        ),
+        (
+            lambda body: with_wedge_arrays(body, lambda w: w._replace(rows=w.rows + 70_000)),
+            "split frame: a wedge value leaves its grid",
+            "split frame: a wedge value leaves its grid",
+        ),
+    ],
+    ids=["other-origin", "other-order", "residual-over-16-bits"],
+)
+def test_both_decoders_refuse_wedge_keys_they_cannot_refine(
+    tmp_path, seamed_pm, change, viewer, python
+):
+    assert len(quantised_wedges(seamed_pm, seamed_pm.n_base).grid.names) == 2
+    answer, refused = _refusals(tmp_path, seamed_pm, _rewritten(_first_payload(seamed_pm), change))
+    assert answer["error"].startswith(f"WireFormatError: {viewer}"), answer
+    assert refused is not None and python in refused, refused
+
+
+_BASE_DRIVER = """
+import { readFileSync } from "node:fs";
+import { pathToFileURL } from "node:url";
+const { decodeBaseMesh } = await import(pathToFileURL(process.argv[2]).href);
+try {
+  decodeBaseMesh(readFileSync(process.argv[3]));
+  console.log(JSON.stringify({ error: null }));
+} catch (error) {
+  console.log(JSON.stringify({ error: `${error.name}: ${error.message}` }));
+}
+"""
+
+
+def test_the_viewer_refuses_base_wedge_values_off_their_grid(tmp_path, seamed_pm):
+    """As msgpack_mesh.read_msgpack_wedges (tests/unit/test_stream_wedges.py)."""
+    node = shutil.which("node")
+    if node is None:
+        pytest.fail("node is missing: it is needed for the viewer's packages (npm ci)")
+    require_web_packages()
+    driver = tmp_path / "driver.mjs"
+    driver.write_text(_BASE_DRIVER)
+    n = seamed_pm.n_base
+    wedges = quantised_wedges(seamed_pm, n)
+    answers = []
+    for values in (wedges.values, np.full_like(wedges.values, 255 + 1)):  # colours: 8 bits
+        blob = codecs.encode_mesh(
+            *seamed_pm.lod(n), "msgpack", quantize_bits=16, grid_box=seamed_pm.position_bounds,
+            wedges=wedges._replace(values=values),
+        )  # fmt: skip
+        (tmp_path / "base.msgpack").write_bytes(blob)
+        done = subprocess.run(
+            [node, str(driver), str(WEB / "js" / "refine.js"), str(tmp_path / "base.msgpack")],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert done.returncode == 0, done.stderr
+        answers.append(json.loads(done.stdout)["error"])
+    assert answers == [None, "WireFormatError: base mesh: 'wedges' values lie outside their grid"]

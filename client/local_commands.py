@@ -61,7 +61,7 @@ def _add_build_arguments(parser: argparse.ArgumentParser) -> None:
         default=[],
         metavar="NAME=VALUE",
         help="a build option (weighting, error_mode, boundary_weight, preserve_topology, "
-        "max_face_turn_deg, merge_coincident); repeatable",
+        "max_face_turn_deg, merge_coincident, distance_weight, ...); repeatable",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 

@@ -31,6 +31,7 @@ from ._kernels.assemble import (
 from ._kernels.contract import (
     N_PARAMS,
     PARAM_COS_STEP_TURN,
+    PARAM_DISTANCE_WEIGHT,
     PARAM_EXACT,
     PARAM_PRESERVE_TOPOLOGY,
     PARAM_RANK_TOLERANCE,
@@ -91,6 +92,7 @@ def _kernel_params(options: BuildOptions) -> np.ndarray:
     params[PARAM_COS_STEP_TURN] = np.cos(np.radians(options.max_face_turn_deg))
     params[PARAM_EXACT] = float(ERROR_MODE_CODES[options.error_mode])
     params[PARAM_PRESERVE_TOPOLOGY] = float(options.preserve_topology)
+    params[PARAM_DISTANCE_WEIGHT] = options.distance_weight
     return params
 
 

@@ -48,6 +48,7 @@ from .appearance import (
     new_wedge_values,
     uv_keeps_orientation,
 )
+from .distance import with_distance
 from .guards import faces_keep_orientation, leaves_a_vertex_bare
 from .heap import cost_key, pair, remove, top, update
 from .link import (
@@ -75,7 +76,8 @@ PARAM_RANK_TOLERANCE = 0
 PARAM_COS_STEP_TURN = 1  # cos of the largest allowed per-contraction turn of a face normal
 PARAM_EXACT = 2  # 1.0 for the exact (inclusion-exclusion) error mode
 PARAM_PRESERVE_TOPOLOGY = 3
-N_PARAMS = 4
+PARAM_DISTANCE_WEIGHT = 4  # weight of the one-step distance in the cost (distance.py)
+N_PARAMS = 5
 
 
 class Complex(NamedTuple):
@@ -398,6 +400,7 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, s
     preserve_topology = params[PARAM_PRESERVE_TOPOLOGY] != 0.0
     cos_step = params[PARAM_COS_STEP_TURN]
     rank_tolerance = params[PARAM_RANK_TOLERANCE]
+    distance_weight = params[PARAM_DISTANCE_WEIGHT]
     # Borrowed views: this call's caller holds every array until it returns.
     vertices, vertex_quadrics = borrow(cx.vertices), borrow(cx.vertex_quadrics)
     vertex_alive, vertex_refused = borrow(cx.vertex_alive), borrow(cx.vertex_refused)
@@ -437,6 +440,7 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, s
     while steps < max_steps:
         if heap_size[0] == 0:
             return STATUS_EXHAUSTED, steps
+        key = heap_entries[0, 0]
         a, b, edge = top(heap_entries)
         # The survivor is the vertex with more faces: fewer corners to relabel.
         if count[b] > count[a]:
@@ -503,6 +507,18 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, s
             vertex_refused[a] = 1
             vertex_refused[b] = 1
             continue
+        if distance_weight > 0.0:
+            # Priced only here, at the top of the queue: the heap holds the quadric cost,
+            # a lower bound, and a candidate that costs more than the next key goes back
+            # with its full cost as its key (reset to the quadric cost when an end
+            # changes). Below the next key the term changes nothing, so it is not priced.
+            next_key = heap_entries[0, 0] if heap_size[0] > 0 else cost_key(np.inf)
+            cost = with_distance(vertices, faces, start, count, pool, a, b, px, py, pz,
+                                 quadric, cost, key, next_key, distance_weight)
+            if cost_key(cost) > next_key:
+                update(heap_entries, heap_position, heap_size, cost_key(cost), pair(a, b),
+                       edge)
+                continue
         merge_edges(faces, face_edge, face_quadrics, edge_quadrics, start, count, pool, near,
                     generation, heap_entries, heap_position, heap_size, a, b, g, exact)
         if has_pairs:

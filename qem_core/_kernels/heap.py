@@ -74,6 +74,24 @@ def _cost_key(cost):
 cost_key = numba.njit(cache=True, inline="always")(_cost_key)
 
 
+@intrinsic
+def _bits_float(typingctx, value):
+    """The float64 whose bits an int64 holds (the inverse of ``_float_bits``)."""
+
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], ir.DoubleType())
+
+    return types.float64(types.int64), codegen
+
+
+def _key_cost(key):
+    """The cost a key of ``cost_key`` was made from."""
+    return _bits_float(key)
+
+
+key_cost = numba.njit(cache=True, inline="always")(_key_cost)
+
+
 def _pair(a, b):
     """The packed (low, high) pair of an edge's ends, the tie-break of equal costs."""
     if a < b:

@@ -45,6 +45,7 @@ def meshes(draw):
 options = st.fixed_dictionaries(
     {
         "error_mode": st.sampled_from(["additive", "exact"]),
+        "distance_weight": st.sampled_from([0.0, 1.0]),
     }
 )
 # Without topology preservation too. Its coarsest levels break the "every vertex used"
@@ -54,6 +55,7 @@ any_options = st.fixed_dictionaries(
     {
         "error_mode": st.sampled_from(["additive", "exact"]),
         "preserve_topology": st.booleans(),
+        "distance_weight": st.sampled_from([0.0, 1.0]),
     }
 )
 

@@ -82,7 +82,8 @@ def test_error_never_decreases_as_levels_coarsen():
 
 @pytest.mark.parametrize("options", [
     {}, {"error_mode": "exact"}, {"weighting": "none"}, {"weighting": "volume"},
-    {"boundary_weight": 0.0}, {"max_face_turn_deg": 180.0},
+    {"boundary_weight": 0.0}, {"max_face_turn_deg": 180.0}, {"distance_weight": 0.0},
+    {"distance_weight": 3.0, "error_mode": "exact"},
 ])
 def test_build_is_deterministic(options, tmp_path):
     mesh = icosphere(2, jitter=0.05, seed=3)
@@ -99,9 +100,10 @@ def test_progress_is_reported_from_zero_to_one():
     assert seen == sorted(seen)
 
 
-def test_lod_equals_the_greedy_run_stopped_there():
+@pytest.mark.parametrize("distance_weight", [0.0, 1.0])
+def test_lod_equals_the_greedy_run_stopped_there(distance_weight):
     vertices, faces = icosphere(2, jitter=0.05, seed=1)
-    options = qem_core.BuildOptions()
+    options = qem_core.BuildOptions(distance_weight=distance_weight)
     pm = qem_core.build(vertices, faces, options)
     for n in (pm.n_base, 20, 60, 120, pm.n_full):
         run = contract_greedily(vertices.astype(float), faces.astype(np.int32), options,

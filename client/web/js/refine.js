@@ -94,24 +94,6 @@ function sortPrefix(array, n) {
   }
 }
 
-/** sortPrefix for the Float64Array of fan keys (one element type per function keeps
- * each of them monomorphic for the JIT). */
-function sortKeys(array, n) {
-  if (n > 32) {
-    array.subarray(0, n).sort();
-    return;
-  }
-  for (let i = 1; i < n; i++) {
-    const value = array[i];
-    let j = i - 1;
-    while (j >= 0 && array[j] > value) {
-      array[j + 1] = array[j];
-      j--;
-    }
-    array[j + 1] = value;
-  }
-}
-
 /** Context of a sign: 0 for 0, 1 for positive, 2 for negative (stream_coding._sign). */
 function signContext(value) {
   return value > 0 ? 1 : value < 0 ? 2 : 0;
@@ -453,7 +435,7 @@ class SplitState {
       const side = forward ? faces[f + ((j + 2) % 3)] : faces[f + ((j + 1) % 3)];
       keys[q] = nc > FAN_SCAN ? side * nc + q : side; // few corners: scanned, not sorted
     }
-    if (nc > FAN_SCAN) sortKeys(keys, nc);
+    if (nc > FAN_SCAN) sortPrefix(keys, nc);
   }
 
   /** The first corner q (in cs order) not marked in `used` whose side is y, or -1

@@ -34,6 +34,7 @@ export const MESH_VERSION = 1;
 const EXPLICIT_FACE = 6; // face codes 0-2: (s, t, x) rotated; 3-5: (t, s, x); 6: explicit
 const ESCAPE = 255; // a third corner given as a back-distance, not as a neighbour index
 const SPAN_RING_LIMIT = 64; // as stream_coding.py: products stay below 2^53
+const FAN_SCAN = 16; // fans of up to this many corners are scanned rather than sorted
 const S_BUCKETS = 32; // s is coded as its bucket of [0, t), then its place in it
 const S_BUCKET_BITS = 5;
 const DIFF_BITS = 13; // as stream_coding.py: shifts that keep products below 2^53
@@ -72,24 +73,6 @@ export const CONTEXT_SLOTS = MID_SIGN_SLOTS + 6;
 /** Sort array[0..n) ascending: by insertion for the few entries of a vertex's ring (a
  * typed array's sort costs more than it sorts there), else the typed array's sort. */
 function sortPrefix(array, n) {
-  if (n > 32) {
-    array.subarray(0, n).sort();
-    return;
-  }
-  for (let i = 1; i < n; i++) {
-    const value = array[i];
-    let j = i - 1;
-    while (j >= 0 && array[j] > value) {
-      array[j + 1] = array[j];
-      j--;
-    }
-    array[j + 1] = value;
-  }
-}
-
-/** sortPrefix for the Float64Array of fan keys (one element type per function keeps
- * each of them monomorphic for the JIT). */
-function sortKeys(array, n) {
   if (n > 32) {
     array.subarray(0, n).sort();
     return;
@@ -382,15 +365,20 @@ class SplitState {
       const c = cs[q];
       const f = c - (c % 3);
       const j = c % 3;
-      keys[q] = (forward ? faces[f + ((j + 2) % 3)] : faces[f + ((j + 1) % 3)]) * nc + q;
+      const side = forward ? faces[f + ((j + 2) % 3)] : faces[f + ((j + 1) % 3)];
+      keys[q] = nc > FAN_SCAN ? side * nc + q : side; // few corners: scanned, not sorted
     }
-    sortKeys(keys, nc);
+    if (nc > FAN_SCAN) sortPrefix(keys, nc);
   }
 
   /** The first corner q (in cs order) not marked in `used` whose side is y, or -1
-   * (stream_coding._fan_next). */
+   * (stream_coding._fan_next; a scan in cs order when there are few corners). */
   fanNext(nc, used, y) {
     const keys = this.keys;
+    if (nc <= FAN_SCAN) {
+      for (let q = 0; q < nc; q++) if (keys[q] === y && !used[q]) return q;
+      return -1;
+    }
     let lo = 0;
     let hi = nc;
     while (lo < hi) {

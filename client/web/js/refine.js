@@ -24,7 +24,7 @@
 
 import { decode } from "@msgpack/msgpack";
 import { bitLength, INTEGER_SLOTS, newProbs, RangeDecoder, UNIFORM_SLOTS } from "./range_coder.js";
-import { binArray, fail, FrameCutter, INDEX_TYPES, WireFormatError } from "./wire.js";
+import { binArray, fail, FrameCutter, gridClose, INDEX_TYPES, WireFormatError } from "./wire.js";
 import { decodeBaseWedges, decodeWedgeFields, WedgeLevels } from "./wedges.js";
 
 export { FrameCutter, WireFormatError };
@@ -843,10 +843,9 @@ export class ProgressiveLevels {
 
   checkGrid(frame) {
     const { origin, step, bits } = this.grid;
-    const close = (a, b) => Math.abs(a - b) <= 1e-9 * Math.max(Math.abs(a), Math.abs(b), 1e-300);
     const same =
       frame.bits === bits &&
-      [0, 1, 2].every((d) => close(frame.grid[d], origin[d]) && close(frame.grid[3 + d], step[d]));
+      [0, 1, 2].every((d) => gridClose(frame.grid[d], origin[d]) && gridClose(frame.grid[3 + d], step[d]));
     if (!same) {
       fail(
         `the split stream's grid (${frame.bits} bits, ${frame.grid}) is not the base mesh's ` +

@@ -14,7 +14,7 @@
 // per-split records of corner and value changes.
 
 import { bitLength, INTEGER_SLOTS, newProbs, RangeDecoder } from "./range_coder.js";
-import { binArray, fail, INDEX_TYPES } from "./wire.js";
+import { binArray, fail, gridClose, INDEX_TYPES } from "./wire.js";
 
 const ESCAPE = 255; // as wedge_coding.py: a wedge given as a back-distance (symbols
 // 1..254 name candidates 0..253 of the corner's list)
@@ -56,14 +56,13 @@ export function attributeGrid(value, what) {
 /** Whether two checked attribute grids are the same: names, widths and bits equal,
  * origins and steps to a relative 1e-9 (qem_core.stream._same_attribute_grid). */
 function sameGrid(a, b) {
-  const close = (x, y) => Math.abs(x - y) <= 1e-9 * Math.max(Math.abs(x), Math.abs(y), 1e-300);
   return (
     a.width === b.width &&
     a.names.length === b.names.length &&
     a.names.every(
       (name, i) => name === b.names[i] && a.widths[i] === b.widths[i] && a.bits[i] === b.bits[i],
     ) &&
-    a.origin.every((o, d) => close(o, b.origin[d]) && close(a.step[d], b.step[d]))
+    a.origin.every((o, d) => gridClose(o, b.origin[d]) && gridClose(a.step[d], b.step[d]))
   );
 }
 

@@ -29,6 +29,12 @@ export function binArray(bytes, Type, count, what) {
 
 export const INDEX_TYPES = { u8: Uint8Array, u16: Uint16Array, u32: Uint32Array };
 
+/** Whether two grid numbers (origins, steps) agree to a relative 1e-9, the tolerance of
+ * qem_core.stream._GRID_TOLERANCE: position and attribute grids are compared alike. */
+export function gridClose(a, b) {
+  return Math.abs(a - b) <= 1e-9 * Math.max(Math.abs(a), Math.abs(b), 1e-300);
+}
+
 /** Cuts a byte stream (any chunking) into frame payloads. */
 export class FrameCutter {
   constructor() {

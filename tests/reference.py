@@ -97,7 +97,7 @@ def plane_quadric(p0, p1, p2, weighting: str) -> np.ndarray:
     n = n / length
     d = -n @ p0
     area = length / 2
-    w = {"none": 1.0, "area": area, "volume": area * area}[weighting]
+    w = {"none": 1.0, "sqrt_area": np.sqrt(area), "area": area, "volume": area * area}[weighting]
     return _plane(n, d, w)
 
 
@@ -106,7 +106,8 @@ def border_quadric(pa, pb, face_normal, weighting: str, weight: float) -> np.nda
     n = np.cross(e, face_normal)
     n = n / np.linalg.norm(n)
     length2 = e @ e
-    w = weight * {"none": 1.0, "area": length2, "volume": length2 * length2}[weighting]
+    w = weight * {"none": 1.0, "sqrt_area": np.sqrt(length2), "area": length2,
+                  "volume": length2 * length2}[weighting]
     return _plane(n, -n @ pa, w)
 
 

@@ -16,6 +16,7 @@ QUADRIC_SIZE = 10
 WEIGHT_NONE = 0
 WEIGHT_AREA = 1
 WEIGHT_VOLUME = 2
+WEIGHT_SQRT_AREA = 3
 
 
 def _add_plane(quadric, normal_x, normal_y, normal_z, offset, weight):
@@ -36,9 +37,12 @@ add_plane = numba.njit(cache=True)(_add_plane)
 
 
 def _area_weight(area, weighting):
-    """The weight of a plane that stands for a surface patch of ``area``."""
+    """The weight of a plane that stands for a surface patch of ``area``: |N|^k for k = 0
+    (none), 1/2 (sqrt_area), 1 (area), 2 (volume), N the patch's area vector."""
     if weighting == WEIGHT_NONE:
         return 1.0
+    if weighting == WEIGHT_SQRT_AREA:
+        return np.sqrt(area)
     if weighting == WEIGHT_AREA:
         return area
     return area * area

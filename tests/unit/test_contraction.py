@@ -83,7 +83,8 @@ def test_error_never_decreases_as_levels_coarsen():
 
 
 @pytest.mark.parametrize("options", [
-    {}, {"error_mode": "exact"}, {"weighting": "none"}, {"weighting": "volume"},
+    {}, {"error_mode": "exact"}, {"weighting": "none"}, {"weighting": "sqrt_area"},
+    {"weighting": "volume"},
     {"boundary_weight": 0.0}, {"max_face_turn_deg": 180.0}, {"distance_weight": 0.0},
     {"distance_weight": 3.0, "error_mode": "exact"},
 ])

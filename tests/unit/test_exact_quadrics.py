@@ -96,7 +96,7 @@ def _current_edges(cx):
     return edges
 
 
-CASES = [(mesh, weighting) for mesh in MESHES for weighting in ("none", "area", "volume")]
+CASES = [(mesh, weighting) for mesh in MESHES for weighting in ("none", "sqrt_area", "area", "volume")]
 
 
 @pytest.mark.parametrize("mesh_name, weighting", CASES)

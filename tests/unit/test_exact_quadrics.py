@@ -96,7 +96,8 @@ def _current_edges(cx):
     return edges
 
 
-CASES = [(mesh, weighting) for mesh in MESHES for weighting in ("none", "sqrt_area", "area", "volume")]
+WEIGHTINGS = ("none", "sqrt_area", "area", "volume")
+CASES = [(mesh, weighting) for mesh in MESHES for weighting in WEIGHTINGS]
 
 
 @pytest.mark.parametrize("mesh_name, weighting", CASES)

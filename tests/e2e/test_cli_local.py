@@ -66,7 +66,7 @@ def test_info_json(built):
     assert info["bytes"] == built.stat().st_size
     errors = [point["error"] for point in info["error_curve"]]
     assert errors == sorted(errors)  # finer levels never have a larger error
-    assert info["options"]["weighting"] == "area"
+    assert info["options"]["weighting"] == qem_core.BuildOptions().weighting  # the default
 
 
 @pytest.mark.parametrize("suffix", [".ply", ".obj", ".glb", ".msgpack"])

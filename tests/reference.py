@@ -88,6 +88,14 @@ def triangle_set(vertices, faces, decimals: int = 12) -> Counter:
     return out
 
 
+# Each weighting is a power of the area a plane stands for (qem_core.options.BuildOptions).
+AREA_EXPONENT = {"none": 0.0, "sqrt_area": 0.5, "area": 1.0, "volume": 2.0}
+
+
+def area_weight(area: float, weighting: str) -> float:
+    return float(area) ** AREA_EXPONENT[weighting]
+
+
 def plane_quadric(p0, p1, p2, weighting: str) -> np.ndarray:
     """The (10,) quadric of the plane through a triangle, weighted as qem_core does."""
     n = np.cross(p1 - p0, p2 - p0)
@@ -96,19 +104,15 @@ def plane_quadric(p0, p1, p2, weighting: str) -> np.ndarray:
         return np.zeros(10)
     n = n / length
     d = -n @ p0
-    area = length / 2
-    w = {"none": 1.0, "sqrt_area": np.sqrt(area), "area": area, "volume": area * area}[weighting]
-    return _plane(n, d, w)
+    return _plane(n, d, area_weight(length / 2, weighting))
 
 
 def border_quadric(pa, pb, face_normal, weighting: str, weight: float) -> np.ndarray:
     e = pb - pa
     n = np.cross(e, face_normal)
     n = n / np.linalg.norm(n)
-    length2 = e @ e
-    w = weight * {"none": 1.0, "sqrt_area": np.sqrt(length2), "area": length2,
-                  "volume": length2 * length2}[weighting]
-    return _plane(n, -n @ pa, w)
+    # A border plane weighs as a face of area |e|^2 (qem_core's boundary_quadric).
+    return _plane(n, -n @ pa, weight * area_weight(e @ e, weighting))
 
 
 def _plane(n, d, w) -> np.ndarray:

@@ -37,6 +37,31 @@ from .heap import cost_key, key_cost
 FREE_RATIO = 4.0
 
 
+def _segment_distance2(px, py, pz, ax, ay, az, bx, by, bz):
+    """Squared distance from p to the segment ab (a point if a == b)."""
+    abx, aby, abz = bx - ax, by - ay, bz - az
+    apx, apy, apz = px - ax, py - ay, pz - az
+    length2 = abx * abx + aby * aby + abz * abz
+    t = 0.0
+    if length2 > 0.0:
+        t = min(max((abx * apx + aby * apy + abz * apz) / length2, 0.0), 1.0)
+    dx, dy, dz = apx - t * abx, apy - t * aby, apz - t * abz
+    return dx * dx + dy * dy + dz * dz
+
+
+segment_distance2 = numba.njit(cache=True, inline="always")(_segment_distance2)
+
+
+def _flat_triangle_distance2(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
+    """Squared distance from p to a triangle without area: to the nearest of its sides."""
+    return min(segment_distance2(px, py, pz, ax, ay, az, bx, by, bz),
+               segment_distance2(px, py, pz, ax, ay, az, cx, cy, cz),
+               segment_distance2(px, py, pz, bx, by, bz, cx, cy, cz))
+
+
+flat_triangle_distance2 = numba.njit(cache=True)(_flat_triangle_distance2)
+
+
 def _point_triangle_distance2(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
     """Squared distance from p to triangle abc (closest point by Voronoi regions,
     Ericson, Real-Time Collision Detection 5.1.5); a degenerate triangle is handled
@@ -58,22 +83,37 @@ def _point_triangle_distance2(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
     d6 = acx * cpx + acy * cpy + acz * cpz
     if d6 >= 0.0 and d5 <= d6:
         return cpx * cpx + cpy * cpy + cpz * cpz  # corner c
+    # Each edge's parameter is s / (s + u), where s + u is the edge's squared length
+    # (d1 - d3 = |ab|^2, d2 - d6 = |ac|^2, (d4 - d3) + (d5 - d6) = |bc|^2), and the
+    # interior's weights share the denominator |ab x ac|^2. Where that is 0 the triangle
+    # is flat (coincident corners are kept with merge_coincident off) and the region
+    # tests above mean nothing: its points are those of its three sides.
     vc = d1 * d4 - d3 * d2
     if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        if not d1 - d3 > 0.0:
+            return flat_triangle_distance2(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz)
         t = d1 / (d1 - d3)  # edge ab
         qx, qy, qz = ax + t * abx, ay + t * aby, az + t * abz
     else:
         vb = d5 * d2 - d1 * d6
         if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+            if not d2 - d6 > 0.0:
+                return flat_triangle_distance2(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz)
             t = d2 / (d2 - d6)  # edge ac
             qx, qy, qz = ax + t * acx, ay + t * acy, az + t * acz
         else:
             va = d3 * d6 - d5 * d4
             if va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0:
+                if not (d4 - d3) + (d5 - d6) > 0.0:
+                    return flat_triangle_distance2(px, py, pz, ax, ay, az, bx, by, bz, cx, cy,
+                                                   cz)
                 t = (d4 - d3) / ((d4 - d3) + (d5 - d6))  # edge bc
                 qx, qy, qz = bx + t * (cx - bx), by + t * (cy - by), bz + t * (cz - bz)
             else:
                 total = va + vb + vc  # inside: > 0 here, or an earlier region held
+                if not total > 0.0:
+                    return flat_triangle_distance2(px, py, pz, ax, ay, az, bx, by, bz, cx, cy,
+                                                   cz)
                 v, w = vb / total, vc / total
                 qx = ax + v * abx + w * acx
                 qy = ay + v * aby + w * acy

@@ -46,6 +46,28 @@ def test_point_triangle_distance_of_a_degenerate_triangle_is_to_its_segment():
     assert point_triangle_distance2(1.0, 1.0, 0.0, *a, *b, *b) == pytest.approx(1.0)
 
 
+@pytest.mark.parametrize("corners", [(0, 0, 1), (0, 1, 1), (0, 1, 0), (0, 0, 0)])
+def test_point_triangle_distance_with_coincident_corners_is_to_the_rest(corners):
+    """Regression: a zero-length edge divided 0 by 0 (ZeroDivisionError in the build of
+    a mesh with coincident vertices kept, merge_coincident=False)."""
+    points = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    a, b, c = points[list(corners)]
+    ends = points[sorted(set(corners))]  # the triangle is this segment (or point)
+    rng = np.random.default_rng(1)
+    for p in rng.normal(size=(200, 3)):
+        t = np.clip(p[0] / 2.0, 0.0, 1.0) if len(ends) == 2 else 0.0
+        expected = np.linalg.norm(p - (ends[0] + t * (ends[-1] - ends[0])))
+        got = np.sqrt(point_triangle_distance2(*p, *a, *b, *c))
+        assert got == pytest.approx(expected, rel=1e-9, abs=1e-12)
+
+
+def test_a_mesh_with_coincident_vertices_kept_builds():
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 1, 0]], float)  # 3 on 2
+    pm = qem_core.build(vertices, [[0, 1, 2], [3, 2, 1]], {"merge_coincident": False})
+    for n in range(pm.n_base, pm.n_full + 1):
+        assert pm.lod(n)[0].shape[0] == n
+
+
 def star_of(vertices, faces):
     faces = np.asarray(faces, np.int32)
     lists = make_face_lists(faces, vertices.shape[0], capacity=faces.size)

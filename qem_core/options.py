@@ -4,18 +4,23 @@ for the kernels."""
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import asdict, dataclass, fields
 from typing import Any, Literal
 
+import numpy as np
+
 from .errors import InvalidOptionsError
 
-__all__ = ["BuildOptions", "WEIGHTING_CODES", "ERROR_MODE_CODES"]
+__all__ = ["BuildOptions", "WEIGHTING_CODES", "WEIGHTING_AREA_EXPONENTS", "ERROR_MODE_CODES"]
 
 Weighting = Literal["none", "sqrt_area", "area", "volume"]
 ErrorMode = Literal["additive", "exact"]
 
 # Kernel codes: the kernels take integers, not strings.
 WEIGHTING_CODES = {"none": 0, "area": 1, "volume": 2, "sqrt_area": 3}
+# Each weighting weights a face's plane by |N|^k, |N| its area: k by weighting.
+WEIGHTING_AREA_EXPONENTS = {"none": 0.0, "sqrt_area": 0.5, "area": 1.0, "volume": 2.0}
 ERROR_MODE_CODES = {"additive": 0, "exact": 1}
 
 
@@ -104,12 +109,10 @@ class BuildOptions:
             raise InvalidOptionsError(
                 f"error_mode={self.error_mode!r} is not one of {sorted(ERROR_MODE_CODES)}"
             )
-        _check_range("boundary_weight", self.boundary_weight, 0.0, 1e6)
-        _check_range("distance_weight", self.distance_weight, 0.0, 1e6)
-        _check_range("max_face_turn_deg", self.max_face_turn_deg, 1e-6, 180.0)
-        _check_range("pair_threshold", self.pair_threshold, 0.0, 1.0)
-        for name in ("uv_weight", "color_weight", "normal_weight"):
-            _check_range(name, getattr(self, name), 0.0, 1e6)
+        for name, low, high in _NUMBER_RANGES:
+            # Stored as a Python float: numpy scalars are accepted, and the options
+            # stay JSON-serialisable (the server keeps them in its metadata).
+            object.__setattr__(self, name, _checked_number(name, getattr(self, name), low, high))
         for name in ("preserve_topology", "merge_coincident", "preserve_volume"):
             if not isinstance(getattr(self, name), bool):
                 raise InvalidOptionsError(f"{name} must be true or false")
@@ -130,8 +133,25 @@ class BuildOptions:
         return asdict(self)
 
 
-def _check_range(name: str, value: float, low: float, high: float) -> None:
-    if isinstance(value, bool) or not isinstance(value, int | float):
+_NUMBER_RANGES = (
+    ("boundary_weight", 0.0, 1e6),
+    ("distance_weight", 0.0, 1e6),
+    ("max_face_turn_deg", 1e-6, 180.0),
+    ("pair_threshold", 0.0, 1.0),
+    ("uv_weight", 0.0, 1e6),
+    ("color_weight", 0.0, 1e6),
+    ("normal_weight", 0.0, 1e6),
+)
+
+
+def _checked_number(name: str, value: object, low: float, high: float) -> float:
+    """value as a float in [low, high]; any real number type (numpy's too), not a bool."""
+    if isinstance(value, bool | np.bool_) or not isinstance(value, numbers.Real):
         raise InvalidOptionsError(f"{name} must be a number, got {value!r}")
-    if not math.isfinite(value) or not low <= value <= high:
+    try:
+        number = float(value)
+    except OverflowError:  # an int past the float range
+        number = math.inf
+    if not math.isfinite(number) or not low <= number <= high:
         raise InvalidOptionsError(f"{name}={value!r} is outside [{low}, {high}]")
+    return number

@@ -88,8 +88,11 @@ def validate_mesh_arrays(
 
     Raises InvalidMeshError naming the first bad value and how to fix it.
     """
-    vertices = np.asarray(vertices)
-    faces = np.asarray(faces)
+    try:
+        vertices = np.asarray(vertices)
+        faces = np.asarray(faces)
+    except (TypeError, ValueError) as error:  # ragged lists, objects numpy cannot hold
+        raise InvalidMeshError(f"{what}: vertices and faces must be arrays: {error}") from None
     if vertices.ndim != 2 or vertices.shape[1] != 3:
         raise InvalidMeshError(
             f"{what}: vertices must be an (n, 3) array of x, y, z, got shape {vertices.shape}"

@@ -141,6 +141,7 @@ def test_all_faces_degenerate_is_refused():
     (np.eye(3), [[0.0, 1.0, 2.0]], "integer"),
     (np.eye(3), [[0, 1, -1]], "negative"),
     (np.array([[0, 0, np.inf], [1, 0, 0], [0, 1, 0]]), [[0, 1, 2]], "non-finite"),
+    ([[0, 0, 0], [1, 0]], [[0, 1, 2]], "must be arrays"),  # ragged: numpy's ValueError
 ])  # fmt: skip
 def test_bad_arrays_are_refused_naming_the_problem(vertices, faces, message):
     with pytest.raises(qem_core.InvalidMeshError, match=message):

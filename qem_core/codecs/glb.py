@@ -270,6 +270,8 @@ def _chunks(data: bytes) -> tuple[dict, bytes]:
                 gltf = json.loads(data[start : start + chunk_length].decode("utf-8"))
             except (UnicodeDecodeError, json.JSONDecodeError) as error:
                 raise MeshFormatError(f"GLB JSON chunk is not valid JSON: {error}") from None
+            except RecursionError:
+                raise MeshFormatError("GLB JSON chunk nests too deeply to read") from None
         elif chunk_type == _BIN_CHUNK and not binary:
             binary = data[start : start + chunk_length]
         position = start + chunk_length

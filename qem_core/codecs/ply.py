@@ -194,8 +194,14 @@ def _parse_header(data: bytes) -> _Header:
     if end < 0:
         where = "the file" if len(data) <= _MAX_HEADER_BYTES else "its first 1 MiB"
         raise MeshFormatError(f"PLY header has no 'end_header' line in {where}")
-    newline = data.find(b"\n", end)
-    body_start = len(data) if newline < 0 else newline + 1
+    after = end + len(b"end_header")
+    if data[after : after + 2] == b"\r\n":
+        body_start = after + 2
+    elif data[after : after + 1] in (b"\n", b"\r"):  # \r alone: classic Mac line ends
+        body_start = after + 1
+    else:  # trailing text on the line
+        newline = data.find(b"\n", end)
+        body_start = len(data) if newline < 0 else newline + 1
     encoding = None
     elements: list[_Element] = []
     properties: list[_Property] = []
@@ -211,6 +217,8 @@ def _parse_header(data: bytes) -> _Header:
         elif words[0] == "element":
             if len(words) != 3 or not words[2].isdigit():
                 raise MeshFormatError(f"{where}: expected 'element NAME COUNT', COUNT >= 0")
+            if any(e.name == words[1] for e in elements):
+                raise MeshFormatError(f"{where}: element {words[1]!r} is declared twice")
             properties = []
             elements.append(_Element(words[1], int(words[2]), ()))
         elif words[0] == "property":

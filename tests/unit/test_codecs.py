@@ -275,6 +275,17 @@ def test_off_and_ascii_ply_are_read():
         assert np.array_equal(mesh.faces, faces)
 
 
+def test_ply_header_lines_may_end_in_crlf_or_cr_alone():
+    """Regression: with CR alone the body was looked for after a LF that never came,
+    and the file read as empty."""
+    vertices, faces = OCTAHEDRON
+    blob = _ply_ascii(vertices, faces)
+    for newline in (b"\r\n", b"\r"):
+        mesh = load_mesh(blob.replace(b"\n", newline), format="ply")
+        assert np.array_equal(mesh.vertices, vertices)
+        assert np.array_equal(mesh.faces, faces)
+
+
 def test_polygons_are_fan_triangulated():
     """A quad (0 1 2 3) becomes (0 1 2) and (0 2 3), by hand."""
     square = b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n"
@@ -404,6 +415,20 @@ BAD_FILES = {
         "glb",
     ),
     "glb_no_json": (b"glTF" + struct.pack("<II", 2, 12), "glb"),
+    # Regression: json.loads raised RecursionError past the codec.
+    "glb_deep_json": (
+        b"glTF" + struct.pack("<II", 2, 20 + 200_000) + struct.pack("<II", 200_000, 0x4E4F534A)
+        + b"[" * 100_000 + b"]" * 100_000,
+        "glb",
+    ),
+    # Regression: the layout came from the second 'vertex', the values from the first
+    # (KeyError 'x').
+    "ply_element_twice": (
+        b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float a\nelement vertex 3\n"
+        b"property float x\nproperty float y\nproperty float z\nelement face 1\n"
+        b"property list uchar int vertex_indices\nend_header\n5\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n",
+        "ply",
+    ),
     "msgpack_not_a_map": (msgpack.packb([1, 2, 3]), "msgpack"),
     "msgpack_float_bits": (
         msgpack.packb(

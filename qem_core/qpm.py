@@ -167,6 +167,13 @@ def _checked_progressive_mesh(arrays: dict, metadata: dict) -> ProgressiveMesh:
         raise CorruptFileError(".qpm face counts per level are inconsistent")
     if level_faces[0] < 0:
         raise CorruptFileError(".qpm base face count is negative")
+    # Positions feed the stream's grid and the level files: a NaN or inf there would
+    # reach the encoders as integers past any grid (and once kept one spinning).
+    for name in ("base_vertices", "split_positions"):
+        if not np.isfinite(arrays[name]).all():
+            raise CorruptFileError(f".qpm {name} holds a non-finite coordinate")
+    if np.isnan(arrays["split_cost"]).any():
+        raise CorruptFileError(".qpm split costs hold a NaN")
     base_faces = arrays["face_corners"][: level_faces[0]]
     if base_faces.size and (base_faces.min() < 0 or base_faces.max() >= base.shape[0]):
         raise CorruptFileError(".qpm base faces use vertices outside the base mesh")
@@ -184,9 +191,11 @@ def _checked_progressive_mesh(arrays: dict, metadata: dict) -> ProgressiveMesh:
     if not isinstance(metadata, dict) or "bbox" not in metadata:
         raise CorruptFileError(".qpm metadata lacks the bounding box")
     try:
-        np.asarray(metadata["bbox"], np.float64).reshape(2, 3)
+        bbox = np.asarray(metadata["bbox"], np.float64).reshape(2, 3)
     except (TypeError, ValueError):
         raise CorruptFileError(".qpm bounding box is not 2 x 3 numbers") from None
+    if not np.isfinite(bbox).all():
+        raise CorruptFileError(".qpm bounding box holds a non-finite number")
     vertex_map = arrays.pop("vertex_map")
     texture = arrays.pop("texture", None)
     if any(name in arrays for name in WEDGE_ARRAYS):

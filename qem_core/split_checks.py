@@ -85,6 +85,9 @@ def check_wedge_arrays(arrays: dict, level_faces: np.ndarray, layout: object) ->
         _wedge_failure("the metadata does not describe the attributes")
     if base.ndim != 2 or base.shape[1] != width:
         _wedge_failure(f"wedge values have shape {base.shape}, expected (W, {width})")
+    for name in ("base_wedge_values", "wedge_update_values", "wedge_new_values"):
+        if not np.isfinite(arrays[name]).all():
+            _wedge_failure(f"{name} holds a non-finite value")
     # Faces of the base are used from level 0, those born by split i from level i + 1.
     born_at = np.repeat(np.arange(k + 1), np.diff(np.concatenate([[0], level_faces])))
     _check_wedge_records(

@@ -265,6 +265,11 @@ def _set_value(name: str, index: int, value):
         ("relabel_faces", 0, 10**7, "relabels a face that does not exist"),
         ("relabel_offsets", -1, 0, "relabel"),
         ("level_faces", 1, 0, "face counts per level"),
+        # Non-finite numbers: they reached the stream encoder, which raised a bare
+        # ValueError or, with an inf and a huge value together, spun for minutes.
+        ("split_positions", 4, np.inf, "split_positions holds a non-finite"),
+        ("base_vertices", 1, np.nan, "base_vertices holds a non-finite"),
+        ("split_cost", 0, np.nan, "split costs hold a NaN"),
     ],
 )
 def test_checksummed_but_inconsistent_arrays_are_refused(saved, name, index, value, match):
@@ -311,7 +316,10 @@ def test_a_malformed_array_entry_is_refused(saved, name, index, value):
 
 @pytest.mark.parametrize(
     "metadata",
-    ["bbox", ["bbox"], 7, {"bbox": "everywhere"}, {"bbox": [0, 1]}, {"bbox": None}],
+    [
+        "bbox", ["bbox"], 7, {"bbox": "everywhere"}, {"bbox": [0, 1]}, {"bbox": None},
+        {"bbox": [[0, 0, 0], [1, float("inf"), 1]]},
+    ],
 )
 def test_metadata_that_is_not_a_map_with_a_2x3_bbox_is_refused(saved, metadata):
     """Regression: a metadata string or list containing "bbox" passed the check and

@@ -8,7 +8,9 @@ and UVs) are gathered per face corner, scaled by their weights, and the distinct
 carry one value row per wedge.
 
 Scaling: an attribute difference of 1 counts like a distance of ``weight`` times the
-bounding-box diagonal, so the defaults do not depend on the mesh's units.
+bounding-box diagonal, so the defaults do not depend on the mesh's units. The diagonal is
+that of the mesh as `build` contracts it (scaled by a power of two to a longest side in
+[0.5, 1)), so the weighted values are of the size of the weights at any size of mesh.
 """
 
 from __future__ import annotations

@@ -54,7 +54,7 @@ from ._kernels.runs import reverse_runs
 from ._kernels.setup import fill_border_quadrics, fill_heap, sum_quadrics
 from .attributes import Wedges, check_options_for_wedges, make_wedges
 from .mesh import Mesh
-from .options import ERROR_MODE_CODES, WEIGHTING_CODES, BuildOptions
+from .options import ERROR_MODE_CODES, WEIGHTING_AREA_EXPONENTS, WEIGHTING_CODES, BuildOptions
 from .prepare import MeshEdges, prepare_mesh_and_edges, unique_edges
 from .progressive import ProgressiveMesh
 
@@ -84,6 +84,52 @@ class ContractionRun(NamedTuple):
     record: Record
     complex: Complex
     n_contractions: int
+
+
+def unit_scale_exponent(vertices: np.ndarray) -> int:
+    """e such that vertices * 2**-e have their longest bounding-box side in [0.5, 1).
+
+    `build` contracts the mesh at that scale. A power of two scales every product, sum
+    and square root the kernels take exactly (short of underflow), so the levels are the
+    same at any scale, and the quadrics of a mesh measured in light years or in
+    nanometres neither overflow nor underflow."""
+    half_sides = vertices.max(axis=0) / 2 - vertices.min(axis=0) / 2  # halves: no overflow
+    longest = float(half_sides.max()) if vertices.size else 0.0
+    if not longest > 0.0:
+        return 0
+    return int(np.frexp(longest)[1]) + 1
+
+
+def to_unit_scale(vertices: np.ndarray) -> tuple[np.ndarray, int, float]:
+    """(vertices * 2**-e, e, their bounding-box diagonal): the mesh as `build` contracts
+    it, e from `unit_scale_exponent`."""
+    scale = unit_scale_exponent(vertices)
+    unit_vertices = np.ldexp(vertices, -scale)
+    diagonal = float(np.linalg.norm(unit_vertices.max(axis=0) - unit_vertices.min(axis=0)))
+    return unit_vertices, scale, diagonal
+
+
+def in_input_units(run: ContractionRun, scale: int, weighting: str) -> ContractionRun:
+    """The run of a mesh contracted at 2**-scale times its size (`unit_scale_exponent`),
+    with its positions and costs back in the input's units.
+
+    A cost is a sum of plane weights times squared distances, the weight a power k of an
+    area (`WEIGHTING_AREA_EXPONENTS`): it scales as length^(2 + 2k). Costs past the float
+    range are clamped to its largest value. Appearance values stay as they are: weighted
+    by the diagonal at the unit scale (attributes.py), they keep the float32 range of the
+    file's wedge arrays at any size of mesh."""
+    if scale == 0:
+        return run
+    record, cx = run.record, run.complex
+    cost_scale = scale * round(2 + 2 * WEIGHTING_AREA_EXPONENTS[weighting])
+    with np.errstate(over="ignore"):
+        cost = np.minimum(np.ldexp(record.cost, cost_scale), np.finfo(np.float64).max)
+    record = record._replace(
+        position_a=np.ldexp(record.position_a, scale),
+        position_b=np.ldexp(record.position_b, scale),
+        cost=cost,
+    )
+    return run._replace(record=record, complex=cx._replace(vertices=np.ldexp(cx.vertices, scale)))
 
 
 def _kernel_params(options: BuildOptions) -> np.ndarray:
@@ -417,15 +463,16 @@ def build(
         if progress is not None:
             progress(0.02 + 0.93 * fraction)
 
-    diagonal = float(np.linalg.norm(prepared.vertices.max(axis=0) - prepared.vertices.min(axis=0)))
+    unit_vertices, scale, diagonal = to_unit_scale(prepared.vertices)
     wedges = None
     if attributes_of is not None:
         wedges = make_wedges(attributes_of, prepared.face_map, prepared.faces, options,
                              diagonal)
         if wedges is not None:
             check_options_for_wedges(options)
-    run = contract_greedily(prepared.vertices, prepared.faces, options, contraction_progress,
+    run = contract_greedily(unit_vertices, prepared.faces, options, contraction_progress,
                             mesh_edges=mesh_edges, wedges=wedges)
+    run = in_input_units(run, scale, options.weighting)
     metadata = {
         "bbox": np.stack([prepared.vertices.min(axis=0), prepared.vertices.max(axis=0)]).tolist(),
         "options": options.to_dict(),

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from qem_core.options import WEIGHTING_AREA_EXPONENTS
+
 SHARED_MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 
 
@@ -88,12 +90,9 @@ def triangle_set(vertices, faces, decimals: int = 12) -> Counter:
     return out
 
 
-# Each weighting is a power of the area a plane stands for (qem_core.options.BuildOptions).
-AREA_EXPONENT = {"none": 0.0, "sqrt_area": 0.5, "area": 1.0, "volume": 2.0}
-
-
 def area_weight(area: float, weighting: str) -> float:
-    return float(area) ** AREA_EXPONENT[weighting]
+    """Each weighting is a power of the area a plane stands for (BuildOptions)."""
+    return float(area) ** WEIGHTING_AREA_EXPONENTS[weighting]
 
 
 def plane_quadric(p0, p1, p2, weighting: str) -> np.ndarray:

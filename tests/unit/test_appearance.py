@@ -21,7 +21,7 @@ from qem_core._kernels.placement import solve3
 from qem_core.attributes import make_wedges
 from qem_core.options import BuildOptions
 from qem_core.prepare import prepare_mesh
-from qem_core.simplify import contract_greedily
+from qem_core.simplify import contract_greedily, to_unit_scale
 
 REPO = Path(__file__).resolve().parents[2]
 SPOT = REPO / "server" / "demo" / "spot.obj"
@@ -145,16 +145,16 @@ def test_lod_mesh_equals_the_greedy_run_stopped_there(spot, spot_pm):
     had when it stopped at n vertices."""
     options = BuildOptions()
     prepared = prepare_mesh(spot.vertices, spot.faces)
-    diagonal = float(np.linalg.norm(np.ptp(prepared.vertices, axis=0)))
+    unit_vertices, scale, diagonal = to_unit_scale(prepared.vertices)  # as build does
     wedges = make_wedges(spot, prepared.face_map, prepared.faces, options, diagonal)
     for n in (2000, 500, 60):
-        run = contract_greedily(prepared.vertices, prepared.faces, options, wedges=wedges,
+        run = contract_greedily(unit_vertices, prepared.faces, options, wedges=wedges,
                                 max_contractions=prepared.vertices.shape[0] - n)
         cx = run.complex
         alive = cx.face_alive.astype(bool)
         corners = cx.faces[alive]
         expected = np.concatenate(
-            [cx.vertices[corners].reshape(-1, 3),
+            [np.ldexp(cx.vertices[corners], scale).reshape(-1, 3),
              cx.wedge_values[cx.face_wedges[alive]].reshape(-1, 2).astype(np.float32)], axis=1)
         level_faces, level_values = spot_pm.wedge_level(n)
         vertices, faces = spot_pm.lod(n)

@@ -6,7 +6,15 @@ import pytest
 import qem_core
 from qem_core.simplify import contract_greedily
 from tests import reference
-from tests.tiny_meshes import OCTAHEDRON, OPEN_BOX, SQUARE, TETRAHEDRON, grid, icosphere
+from tests.tiny_meshes import (
+    OCTAHEDRON,
+    OPEN_BOX,
+    SQUARE,
+    TETRAHEDRON,
+    bumpy_grid,
+    grid,
+    icosphere,
+)
 
 
 def every_level(pm):
@@ -132,3 +140,56 @@ def test_bad_options_are_refused_clearly():
         qem_core.build(*SQUARE, {"weighting": "mass"})
     with pytest.raises(qem_core.InvalidOptionsError, match="unknown build option"):
         qem_core.build(*SQUARE, {"colour": 1})
+
+
+def _same_levels_scaled(pm, scaled, exponent, cost_degree):
+    assert (scaled.n_base, scaled.n_full) == (pm.n_base, pm.n_full)
+    for n in range(pm.n_base, pm.n_full + 1):
+        vertices, faces = pm.lod(n)
+        scaled_vertices, scaled_faces = scaled.lod(n)
+        assert np.array_equal(scaled_faces, faces)
+        assert np.array_equal(scaled_vertices, np.ldexp(vertices, exponent))
+        assert scaled.error(n) == np.ldexp(pm.error(n), cost_degree * exponent)
+
+
+@pytest.mark.parametrize("weighting, cost_degree", [("none", 2), ("sqrt_area", 3), ("volume", 6)])
+@pytest.mark.parametrize("exponent", [-150, -3, 5, 150])  # costs stay in the float range
+def test_levels_are_the_same_at_any_power_of_two_scale(weighting, cost_degree, exponent):
+    """build contracts every mesh at one scale (simplify.unit_scale_exponent): a mesh 2^e
+    times as large has the same levels, 2^e times as large, and costs that scale as a
+    squared distance times its plane weight. Regression: at 1e+-80 nothing contracted
+    (the quadrics overflowed or underflowed) and the build returned the input alone."""
+    vertices, faces = bumpy_grid(8)
+    vertices = vertices * [1.0, 1.5, 0.7] + [3.0, -2.0, 0.5]
+    options = {"weighting": weighting}
+    pm = qem_core.build(vertices, faces, options)
+    scaled = qem_core.build(np.ldexp(vertices, exponent), faces, options)
+    _same_levels_scaled(pm, scaled, exponent, cost_degree)
+
+
+@pytest.mark.parametrize("scale", [1e-300, 1e-100, 1e100, 1e300])
+def test_meshes_of_extreme_size_simplify_as_far(scale):
+    vertices, faces = icosphere(2, jitter=0.1)
+    assert qem_core.build(vertices * scale, faces).n_base == qem_core.build(vertices, faces).n_base
+
+
+@pytest.mark.parametrize("exponent", [-300, 7, 300])
+def test_levels_with_colours_are_the_same_at_any_power_of_two_scale(exponent):
+    """The colours, weighted by the bounding-box diagonal, scale with it: the levels
+    and their colours do not change, nor does what the file stores."""
+    vertices, faces = bumpy_grid(8)
+    colours = np.random.default_rng(3).uniform(0, 1, (vertices.shape[0], 3)).astype(np.float32)
+    options = {"distance_weight": 0.0}  # costs past the float range at 2^300 are clamped
+    pm = qem_core.build_mesh(qem_core.Mesh(vertices, faces, {"color": colours}), options)
+    scaled = qem_core.build_mesh(
+        qem_core.Mesh(np.ldexp(vertices, exponent), faces, {"color": colours}), options
+    )
+    assert pm.metadata["attributes"] == scaled.metadata["attributes"]
+    for name, array in pm.wedge_arrays.items():
+        assert np.array_equal(scaled.wedge_arrays[name], array), name
+    for n in range(pm.n_base, pm.n_full + 1):
+        level, scaled_level = pm.lod_mesh(n), scaled.lod_mesh(n)
+        assert np.array_equal(scaled_level.faces, level.faces)
+        assert np.array_equal(scaled_level.vertices, np.ldexp(level.vertices, exponent))
+        assert np.array_equal(scaled_level.vertex_attributes["color"],
+                              level.vertex_attributes["color"])

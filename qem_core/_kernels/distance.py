@@ -35,6 +35,12 @@ from .heap import cost_key, key_cost
 # on curved parts start paying and the queue churns (each candidate that pays is put back
 # once); above it, fewer cuts are caught (measured on the meshes of bench/).
 FREE_RATIO = 4.0
+# Stars of more faces than this (a and b together) are priced by the quadric alone. The
+# search tests each moved point against the star, so it costs the square of the star's
+# size, and a vertex of degree d is contracted into d times: a fan of 3000 triangles
+# round one vertex took minutes. Meshes of the bench never reach it (their levels are
+# byte-identical with and without the cap).
+MAX_DISTANCE_STAR = 128
 
 
 def _segment_distance2(px, py, pz, ax, ay, az, bx, by, bz):
@@ -247,6 +253,8 @@ def _with_distance(vertices, faces, start, count, pool, a, b, px, py, pz, quadri
     """
     if key > cost_key(cost):
         return key_cost(key)
+    if count[a] + count[b] > MAX_DISTANCE_STAR:
+        return cost
     weight = quadric[0] + quadric[3] + quadric[5]
     if not weight > 0.0:
         return cost

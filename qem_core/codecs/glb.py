@@ -303,12 +303,23 @@ def _buffers(gltf: dict, binary: bytes) -> list[bytes]:
     return buffers
 
 
+# Vertices (and triangles) the primitives of a GLB may read beyond what its buffers hold.
+_SHARED_ALLOWANCE = 1 << 20
+
+
 def _read_meshes(gltf: dict, buffers: list[bytes]) -> Mesh:
     if "KHR_draco_mesh_compression" in gltf.get("extensionsRequired", []):
         raise MeshFormatError("Draco-compressed GLB is not supported; export without Draco")
     positions, faces, attributes, offset = [], [], [], 0
     first_primitive = None
     n_primitives = 0
+    # Primitives may share accessors, and each is copied: a 300 KB file whose thousands
+    # of primitives name one POSITION accessor expanded to gigabytes. A vertex takes at
+    # least 3 bytes of buffer (12 unquantised) and an index 1, so these budgets let a
+    # file share its data among 4 primitives or more, not without end.
+    buffer_bytes = sum(len(buffer) for buffer in buffers)
+    vertex_budget = buffer_bytes // 3 + _SHARED_ALLOWANCE
+    index_budget = buffer_bytes + 3 * _SHARED_ALLOWANCE
     for mesh in gltf.get("meshes", []):
         for primitive in mesh["primitives"]:
             if primitive.get("mode", _TRIANGLES) != _TRIANGLES:
@@ -328,6 +339,13 @@ def _read_meshes(gltf: dict, buffers: list[bytes]) -> Mesh:
             if indices.size % 3:
                 raise MeshFormatError(
                     f"GLB triangle primitive has {indices.size} indices, not a multiple of 3"
+                )
+            vertex_budget -= vertices.shape[0]
+            index_budget -= indices.size
+            if vertex_budget < 0 or index_budget < 0:
+                raise MeshFormatError(
+                    f"GLB primitives read more vertices or indices than {buffer_bytes} bytes "
+                    "of buffer can hold: they share accessors too many times over"
                 )
             positions.append(vertices.astype(np.float64))
             faces.append(indices.reshape(-1, 3) + offset)

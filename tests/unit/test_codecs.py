@@ -598,3 +598,21 @@ def test_flipped_bytes_load_or_are_refused(name):
             damaged = bytearray(blob)
             damaged[position] ^= 1 << int(bit)
             _load_or_refuse(bytes(damaged), fmt)
+
+
+def test_glb_primitives_sharing_one_accessor_without_end_are_refused(monkeypatch):
+    """Regression: thousands of primitives naming one POSITION accessor copied it each
+    time (a 300 KB file asked for gigabytes). Sharing is allowed up to the data the
+    buffers could hold (times four, plus an allowance, set to 0 here to test it small)."""
+    from qem_core.codecs import glb
+
+    monkeypatch.setattr(glb, "_SHARED_ALLOWANCE", 0)
+
+    def primitives(times):
+        return lambda gltf: gltf["meshes"][0].update(
+            primitives=gltf["meshes"][0]["primitives"] * times
+        )
+
+    assert load_mesh(_glb_with(primitives(4))).n_vertices == 4 * OCTAHEDRON[0].shape[0]
+    with pytest.raises(MeshFormatError, match="share accessors"):
+        load_mesh(_glb_with(primitives(40)))

@@ -22,12 +22,14 @@ __all__ = [
     "CacheDep",
     "JobsDep",
     "KnownQueryOnly",
+    "SingleQueryValues",
     "SettingsDep",
     "StorageDep",
     "WriterDep",
     "app_settings",
     "lod_cache",
     "job_queue",
+    "refuse_repeated_query",
     "refuse_unknown_query",
     "require_writer",
     "storage",
@@ -105,6 +107,19 @@ def refuse_unknown_query(request: Request) -> None:
         )
 
 
+def refuse_repeated_query(request: Request) -> None:
+    """Refuse a query parameter given twice (``?vertices=10&vertices=20``): which one was
+    meant is a guess, and taking the last would answer a question not asked."""
+    names = [name for name, _ in request.query_params.multi_items()]
+    repeated = sorted({name for name in names if names.count(name) > 1})
+    if repeated:
+        raise Problem(
+            "invalid-request",
+            f"query parameter(s) {', '.join(map(repr, repeated))} given more than once; "
+            "give each once",
+        )
+
+
 def _query_names(dependant) -> set[str]:
     """The query parameter names (aliases) an endpoint and its dependencies declare."""
     names = {field.alias for field in dependant.query_params}
@@ -114,3 +129,4 @@ def _query_names(dependant) -> set[str]:
 
 
 KnownQueryOnly = Depends(refuse_unknown_query)
+SingleQueryValues = Depends(refuse_repeated_query)

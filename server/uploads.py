@@ -144,6 +144,7 @@ class _MultipartState:
         self.found = False
         self.filename: str | None = None
         self.other_bytes = 0
+        self.ended = False  # the closing boundary was read
 
     def callbacks(self) -> dict[str, Any]:
         return {
@@ -153,7 +154,11 @@ class _MultipartState:
             "on_header_value": self.on_header_value,
             "on_header_end": self.on_header_end,
             "on_headers_finished": self.on_headers_finished,
+            "on_end": self.on_end,
         }
+
+    def on_end(self) -> None:
+        self.ended = True
 
     def on_part_begin(self) -> None:
         self.disposition = b""
@@ -208,6 +213,13 @@ async def _receive_multipart(request: Request, content_type: str, sink: _Sink) -
         parser.finalize()
     except FormParserError as exc:
         raise Problem("bad-upload", f"the multipart body is malformed ({exc})") from None
+    if not state.ended:
+        # The parser's finalize does not check this: a cut-off body would be built as
+        # if the part of the file that arrived were all of it.
+        raise Problem(
+            "bad-upload",
+            "the multipart body ends before its closing boundary: the upload was cut short",
+        )
     if not state.found:
         raise Problem(
             "bad-upload",

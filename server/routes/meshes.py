@@ -22,7 +22,15 @@ from qem_core import codecs
 from qem_core import stream as split_stream
 
 from .. import __version__
-from ..deps import CacheDep, JobsDep, KnownQueryOnly, SettingsDep, StorageDep, WriterDep
+from ..deps import (
+    CacheDep,
+    JobsDep,
+    KnownQueryOnly,
+    SettingsDep,
+    SingleQueryValues,
+    StorageDep,
+    WriterDep,
+)
 from ..problems import Problem, problem_responses
 from ..schemas import (
     LodFormat,
@@ -38,7 +46,7 @@ from ..uploads import check_file_name, receive_upload, register_upload
 
 __all__ = ["router"]
 
-router = APIRouter(prefix="/v1/meshes", tags=["meshes"])
+router = APIRouter(prefix="/v1/meshes", tags=["meshes"], dependencies=[SingleQueryValues])
 
 IMMUTABLE = "public, max-age=31536000, immutable"
 LOD_HEADERS = ("ETag", "X-Lod-Vertices", "X-Lod-Faces", "X-Lod-Error")
@@ -160,13 +168,15 @@ async def upload_mesh(
     return UploadAccepted(id=record.id, url=url)
 
 
-@router.get("", response_model=MeshList, summary="List meshes with their status")
+@router.get("", response_model=MeshList, summary="List meshes with their status",
+            dependencies=[KnownQueryOnly])
 def list_meshes(storage: StorageDep) -> MeshList:
     return MeshList(meshes=[mesh_info(record) for record in storage.metadata.records()])
 
 
 @router.get(
     "/{mesh_id}",
+    dependencies=[KnownQueryOnly],
     response_model=MeshInfo,
     summary="Metadata and build status of a mesh",
     responses=problem_responses(404),
@@ -278,6 +288,7 @@ def get_splits(
 
 @router.get(
     "/{mesh_id}/texture",
+    dependencies=[KnownQueryOnly],
     summary="The texture image of a mesh",
     response_class=Response,
     responses={
@@ -317,6 +328,7 @@ def get_texture(
 
 @router.delete(
     "/{mesh_id}",
+    dependencies=[KnownQueryOnly],
     status_code=204,
     response_class=Response,
     summary="Delete a mesh and its data",

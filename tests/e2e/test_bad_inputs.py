@@ -97,6 +97,11 @@ REFUSED_UPLOADS = [
     ("unknown option", {"params": {"name": "a.ply", "speed": "9"}, "content": b"x"}, 422),
     ("bad option value", {"params": {"name": "a.ply", "weighting": "x"}, "content": b"x"}, 422),
     (
+        "option twice",
+        {"params": {"name": "a.ply", "weighting": ["none", "area"]}, "content": ascii_ply()},
+        422,
+    ),
+    (
         "option out of range",
         {"params": {"name": "a.ply", "pair_threshold": "2"}, "content": b"x"},
         422,
@@ -107,6 +112,16 @@ REFUSED_UPLOADS = [
         {
             "headers": {"content-type": "multipart/form-data; boundary=" + "b" * 300},
             "content": b"x",
+        },
+        400,
+    ),
+    (
+        # Regression: built from the half that arrived.
+        "multipart cut short",
+        {
+            "headers": {"content-type": "multipart/form-data; boundary=b"},
+            "content": b'--b\r\nContent-Disposition: form-data; name="file"; filename="a.ply"'
+            b"\r\n\r\n" + ascii_ply()[:40],
         },
         400,
     ),
@@ -133,6 +148,15 @@ BAD_READS = [
     ("unknown lod format", "GET", "{mesh}/lod", {"format": "stl"}, 422),
     ("splits backwards", "GET", "{mesh}/splits", {"from": 900, "to": 100}, 422),
     ("splits from zero", "GET", "{mesh}/splits", {"from": 0}, 422),
+    # A parameter given twice: the last one used to win silently.
+    ("vertices twice", "GET", "{mesh}/lod", {"vertices": [10, 20]}, 422),
+    ("format twice", "GET", "{mesh}/lod", {"format": ["ply", "glb"]}, 422),
+    ("from twice", "GET", "{mesh}/splits", {"from": [10, 20]}, 422),
+    # Endpoints without parameters refuse any, as lod and splits do.
+    ("parameter on metadata", "GET", "{mesh}", {"x": 1}, 422),
+    ("parameter on the list", "GET", "/v1/meshes", {"limit": "abc"}, 422),
+    ("parameter on texture", "GET", "{mesh}/texture", {"x": 1}, 422),
+    ("parameter on delete", "DELETE", "{mesh}", {"x": 1}, 422),
     ("unknown route", "GET", "/v1/nothing", {}, 404),
     ("wrong method", "PUT", "/v1/meshes", {}, 405),
 ]

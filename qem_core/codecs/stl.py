@@ -26,6 +26,9 @@ __all__ = ["read_stl", "is_binary_stl", "is_ascii_stl"]
 
 _FACET = np.dtype([("normal", "<f4", (3,)), ("corners", "<f4", (3, 3)), ("attribute", "<u2")])
 _VERTEX_LINE = re.compile(rb"^[ \t]*vertex[ \t]+([^\r\n]*)", re.MULTILINE | re.IGNORECASE)
+# The closing line, looked for in the last bytes (after it only its name and blanks).
+_END_SOLID = re.compile(rb"^[ \t]*endsolid\b[^\n]*\s*\Z", re.MULTILINE | re.IGNORECASE)
+_TAIL_BYTES = 4096
 
 
 def is_binary_stl(data: bytes) -> bool:
@@ -74,6 +77,10 @@ def _read_ascii(data: bytes) -> Mesh:
     if len(lines) % 3:
         raise MeshFormatError(
             f"ASCII STL has {len(lines)} 'vertex' lines, not a multiple of 3: a facet is truncated"
+        )
+    if not _END_SOLID.search(data[-_TAIL_BYTES:]):
+        raise MeshFormatError(
+            "ASCII STL does not end with an 'endsolid' line: the file is truncated"
         )
     return _soup(numbers.reshape(-1, 3))
 

@@ -406,6 +406,10 @@ BAD_FILES = {
         _stl_ascii(_TRIANGLE, [[0, 1, 2]]).replace(b"vertex 0.0 1.0 0.0", b"vertex 0.0 1.0"),
         "stl",
     ),
+    # Regression: cut after a facet, it loaded the facets before the cut.
+    "stl_ascii_cut_after_a_facet": (
+        _stl_ascii(*OCTAHEDRON).split(b"endfacet")[0] + b"endfacet", "stl"
+    ),
     "off_binary": (b"OFF BINARY\n" + b"\0" * 40, "off"),
     "off_4d": (b"4OFF\n1 0 0\n0 0 0 0\n", "off"),
     "off_words": (b"OFF\nthree one zero\n", "off"),

@@ -73,7 +73,11 @@ MAX_WEDGES_PER_CONTRACTION = 1024
 # A direction of the contraction quadric whose eigenvalue is below this fraction of the
 # largest is treated as flat (truncated pseudo-inverse, see _kernels/placement.py).
 RANK_TOLERANCE = 1e-3
+# Contractions per call of the loop: Python reports progress (and a server job notices a
+# delete) between calls. Small meshes take chunks of a sixteenth of their vertices, so
+# they report too; chunks change nothing in the result.
 CHUNK_CONTRACTIONS = 16384
+MIN_CHUNK_CONTRACTIONS = 256
 
 ProgressCallback = Callable[[float], None]
 
@@ -288,11 +292,11 @@ def contract_greedily(
     record = _make_record(n, m, *cx.wedge_values.shape)
     budget = n if max_contractions is None else max(0, int(max_contractions))
     done = 0
+    chunk = min(CHUNK_CONTRACTIONS, max(MIN_CHUNK_CONTRACTIONS, n // 16))
     while done < budget:
         restart_generations(hood)
         status, steps = run_contractions(
-            cx, lists, pairs, hood, heap, record, params,
-            min(CHUNK_CONTRACTIONS, budget - done), scratch,
+            cx, lists, pairs, hood, heap, record, params, min(chunk, budget - done), scratch,
         )
         done += steps
         if status == STATUS_EXHAUSTED:

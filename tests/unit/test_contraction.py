@@ -111,6 +111,14 @@ def test_progress_is_reported_from_zero_to_one():
     assert seen == sorted(seen)
 
 
+def test_a_small_mesh_reports_progress_while_it_contracts():
+    """Regression: progress (and a server's check for a delete) came once per 16384
+    contractions, so a mesh of fewer vertices reported none until it was done."""
+    seen = []
+    qem_core.build(*grid(60), progress=seen.append)  # 3600 vertices
+    assert len({f for f in seen if 0.02 < f < 0.95}) >= 8
+
+
 @pytest.mark.parametrize("distance_weight", [0.0, 1.0])
 def test_lod_equals_the_greedy_run_stopped_there(distance_weight):
     vertices, faces = icosphere(2, jitter=0.05, seed=1)

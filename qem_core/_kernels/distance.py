@@ -90,40 +90,29 @@ def _point_triangle_distance2(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
     if d6 >= 0.0 and d5 <= d6:
         return cpx * cpx + cpy * cpy + cpz * cpz  # corner c
     # Each edge's parameter is s / (s + u), where s + u is the edge's squared length
-    # (d1 - d3 = |ab|^2, d2 - d6 = |ac|^2, (d4 - d3) + (d5 - d6) = |bc|^2), and the
-    # interior's weights share the denominator |ab x ac|^2. Where that is 0 the triangle
-    # is flat (coincident corners are kept with merge_coincident off) and the region
-    # tests above mean nothing: its points are those of its three sides.
+    # (d1 - d3 = |ab|^2, d2 - d6 = |ac|^2, (d4 - d3) + (d5 - d6) = |bc|^2): an edge of
+    # length 0 (coincident corners, kept with merge_coincident off) is passed over, and
+    # the triangle is then one of its other sides or, with all region weights 0, flat.
     vc = d1 * d4 - d3 * d2
-    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-        if not d1 - d3 > 0.0:
-            return flat_triangle_distance2(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz)
+    vb = d5 * d2 - d1 * d6
+    va = d3 * d6 - d5 * d4
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0 and d1 - d3 > 0.0:
         t = d1 / (d1 - d3)  # edge ab
         qx, qy, qz = ax + t * abx, ay + t * aby, az + t * abz
+    elif vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0 and d2 - d6 > 0.0:
+        t = d2 / (d2 - d6)  # edge ac
+        qx, qy, qz = ax + t * acx, ay + t * acy, az + t * acz
+    elif va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0 and (d4 - d3) + (d5 - d6) > 0.0:
+        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))  # edge bc
+        qx, qy, qz = bx + t * (cx - bx), by + t * (cy - by), bz + t * (cz - bz)
     else:
-        vb = d5 * d2 - d1 * d6
-        if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-            if not d2 - d6 > 0.0:
-                return flat_triangle_distance2(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz)
-            t = d2 / (d2 - d6)  # edge ac
-            qx, qy, qz = ax + t * acx, ay + t * acy, az + t * acz
-        else:
-            va = d3 * d6 - d5 * d4
-            if va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0:
-                if not (d4 - d3) + (d5 - d6) > 0.0:
-                    return flat_triangle_distance2(px, py, pz, ax, ay, az, bx, by, bz, cx, cy,
-                                                   cz)
-                t = (d4 - d3) / ((d4 - d3) + (d5 - d6))  # edge bc
-                qx, qy, qz = bx + t * (cx - bx), by + t * (cy - by), bz + t * (cz - bz)
-            else:
-                total = va + vb + vc  # inside: > 0 here, or an earlier region held
-                if not total > 0.0:
-                    return flat_triangle_distance2(px, py, pz, ax, ay, az, bx, by, bz, cx, cy,
-                                                   cz)
-                v, w = vb / total, vc / total
-                qx = ax + v * abx + w * acx
-                qy = ay + v * aby + w * acy
-                qz = az + v * abz + w * acz
+        total = va + vb + vc  # inside: > 0 here, or an earlier region held
+        if not total > 0.0:
+            return flat_triangle_distance2(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz)
+        v, w = vb / total, vc / total
+        qx = ax + v * abx + w * acx
+        qy = ay + v * aby + w * acy
+        qz = az + v * abz + w * acz
     dx, dy, dz = px - qx, py - qy, pz - qz
     return dx * dx + dy * dy + dz * dz
 

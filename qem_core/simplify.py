@@ -90,31 +90,24 @@ class ContractionRun(NamedTuple):
     n_contractions: int
 
 
-def unit_scale_exponent(vertices: np.ndarray) -> int:
-    """e such that vertices * 2**-e have their longest bounding-box side in [0.5, 1).
+def to_unit_scale(vertices: np.ndarray) -> tuple[np.ndarray, int, float]:
+    """(vertices * 2**-e, e, their bounding-box diagonal), e such that the scaled
+    vertices have their longest bounding-box side in [0.5, 1): the mesh as `build`
+    contracts it.
 
-    `build` contracts the mesh at that scale. A power of two scales every product, sum
-    and square root the kernels take exactly (short of underflow), so the levels are the
-    same at any scale, and the quadrics of a mesh measured in light years or in
-    nanometres neither overflow nor underflow."""
+    A power of two scales every product, sum and square root the kernels take exactly
+    (short of underflow), so the levels are the same at any scale, and the quadrics of a
+    mesh measured in light years or in nanometres neither overflow nor underflow."""
     half_sides = vertices.max(axis=0) / 2 - vertices.min(axis=0) / 2  # halves: no overflow
     longest = float(half_sides.max()) if vertices.size else 0.0
-    if not longest > 0.0:
-        return 0
-    return int(np.frexp(longest)[1]) + 1
-
-
-def to_unit_scale(vertices: np.ndarray) -> tuple[np.ndarray, int, float]:
-    """(vertices * 2**-e, e, their bounding-box diagonal): the mesh as `build` contracts
-    it, e from `unit_scale_exponent`."""
-    scale = unit_scale_exponent(vertices)
+    scale = int(np.frexp(longest)[1]) + 1 if longest > 0.0 else 0
     unit_vertices = np.ldexp(vertices, -scale)
     diagonal = float(np.linalg.norm(unit_vertices.max(axis=0) - unit_vertices.min(axis=0)))
     return unit_vertices, scale, diagonal
 
 
 def in_input_units(run: ContractionRun, scale: int, weighting: str) -> ContractionRun:
-    """The run of a mesh contracted at 2**-scale times its size (`unit_scale_exponent`),
+    """The run of a mesh contracted at 2**-scale times its size (`to_unit_scale`),
     with its positions and costs back in the input's units.
 
     A cost is a sum of plane weights times squared distances, the weight a power k of an

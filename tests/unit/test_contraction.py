@@ -163,7 +163,7 @@ def _same_levels_scaled(pm, scaled, exponent, cost_degree):
 @pytest.mark.parametrize("weighting, cost_degree", [("none", 2), ("sqrt_area", 3), ("volume", 6)])
 @pytest.mark.parametrize("exponent", [-150, -3, 5, 150])  # costs stay in the float range
 def test_levels_are_the_same_at_any_power_of_two_scale(weighting, cost_degree, exponent):
-    """build contracts every mesh at one scale (simplify.unit_scale_exponent): a mesh 2^e
+    """build contracts every mesh at one scale (simplify.to_unit_scale): a mesh 2^e
     times as large has the same levels, 2^e times as large, and costs that scale as a
     squared distance times its plane weight. Regression: at 1e+-80 nothing contracted
     (the quadrics overflowed or underflowed) and the build returned the input alone."""

@@ -7,6 +7,7 @@ these with ``app.dependency_overrides``.
 from __future__ import annotations
 
 import hmac
+from collections import Counter
 from typing import Annotated
 
 from fastapi import Depends, Request
@@ -110,8 +111,8 @@ def refuse_unknown_query(request: Request) -> None:
 def refuse_repeated_query(request: Request) -> None:
     """Refuse a query parameter given twice (``?vertices=10&vertices=20``): which one was
     meant is a guess, and taking the last would answer a question not asked."""
-    names = [name for name, _ in request.query_params.multi_items()]
-    repeated = sorted({name for name in names if names.count(name) > 1})
+    counts = Counter(name for name, _ in request.query_params.multi_items())
+    repeated = sorted(name for name, count in counts.items() if count > 1)
     if repeated:
         raise Problem(
             "invalid-request",

@@ -12,12 +12,14 @@ import numpy as np
 from ..errors import MeshFormatError
 
 
-def fan_corners(corner_counts: np.ndarray, what: str) -> np.ndarray:
+def fan_corners(corner_counts: np.ndarray, what: str, first_number: int = 0) -> np.ndarray:
     """(t, 3) int64 positions, in the flat corner list, of the fan triangles' corners.
 
     corner_counts : (p,) int, the number of corners of each polygon, all >= 3; the
         polygons' corners lie one after another in a flat list.
     what : names the polygons in the error message, e.g. "OBJ 'f' line".
+    first_number : the number the message gives the first polygon (1 for OBJ lines,
+        which editors count from 1; 0 for PLY and OFF face indices).
 
     Index a flat per-corner array (vertex indices, UV indices) with the result to get
     per-triangle-corner values. Raises MeshFormatError for a polygon of < 3 corners.
@@ -26,7 +28,8 @@ def fan_corners(corner_counts: np.ndarray, what: str) -> np.ndarray:
     if corner_counts.size and corner_counts.min() < 3:
         bad = int(np.flatnonzero(corner_counts < 3)[0])
         raise MeshFormatError(
-            f"{what} {bad} has {int(corner_counts[bad])} corners; a face needs at least 3"
+            f"{what} {bad + first_number} has {int(corner_counts[bad])} corners; "
+            "a face needs at least 3"
         )
     first_corner = np.cumsum(corner_counts) - corner_counts
     if corner_counts.size and corner_counts.max() == 3:

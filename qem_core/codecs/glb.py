@@ -349,13 +349,20 @@ def _read_meshes(gltf: dict, buffers: list[bytes]) -> Mesh:
                 )
             positions.append(vertices.astype(np.float64))
             faces.append(indices.reshape(-1, 3) + offset)
-            attributes.append(
-                {
-                    name: _accessor(gltf, buffers, names[key], key, normalized=True)
-                    for key, name in _ATTRIBUTES.items()
-                    if key in names
-                }
-            )
+            primitive_attributes = {
+                name: _accessor(gltf, buffers, names[key], key, normalized=True)
+                for key, name in _ATTRIBUTES.items()
+                if key in names
+            }
+            for key, name in _ATTRIBUTES.items():
+                if name in primitive_attributes and (
+                    primitive_attributes[name].shape[0] != vertices.shape[0]
+                ):
+                    raise MeshFormatError(
+                        f"GLB primitive has {primitive_attributes[name].shape[0]} {key} "
+                        f"values for {vertices.shape[0]} positions; each vertex needs one"
+                    )
+            attributes.append(primitive_attributes)
             offset += vertices.shape[0]
     if first_primitive is None:
         raise MeshFormatError("GLB has no triangle primitive: nothing to simplify")
@@ -441,13 +448,25 @@ def _view_bytes(gltf: dict, buffers: list[bytes], index: object) -> tuple[bytes,
     if not isinstance(buffer_index, int) or not 0 <= buffer_index < len(buffers):
         raise MeshFormatError(f"GLB bufferView {index} refers to a missing buffer")
     buffer = buffers[buffer_index]
-    start, length = int(view.get("byteOffset", 0)), int(view["byteLength"])
+    start = _whole_number(view, "byteOffset", f"bufferView {index}", 0)
+    length = _whole_number(view, "byteLength", f"bufferView {index}")
     if start < 0 or length < 0 or start + length > len(buffer):
         raise MeshFormatError(
             f"GLB bufferView {index} spans bytes {start}..{start + length} of a "
             f"{len(buffer)}-byte buffer: the file is truncated or damaged"
         )
-    return buffer, start, length, int(view.get("byteStride", 0))
+    return buffer, start, length, _whole_number(view, "byteStride", f"bufferView {index}", 0)
+
+
+def _whole_number(item: dict, key: str, what: str, default: int | None = None) -> int:
+    """item[key] as a non-negative int (glTF counts, offsets and lengths are JSON
+    integers): a float, a string, Infinity or a negative number is refused by name."""
+    value = item.get(key, default)
+    if value is None:
+        raise MeshFormatError(f"GLB {what} has no {key}")
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise MeshFormatError(f"GLB {what} {key} is {value!r}, not a non-negative integer")
+    return value
 
 
 def _accessor(
@@ -467,11 +486,11 @@ def _accessor(
             f"GLB {what} accessor has componentType {accessor['componentType']} and type "
             f"{accessor['type']!r}; expected a glTF 2.0 scalar or vector type"
         )
-    count = int(accessor["count"])
+    count = _whole_number(accessor, "count", f"{what} accessor")
     buffer, start, length, stride = _view_bytes(gltf, buffers, accessor["bufferView"])
     element = dtype.itemsize * width
     stride = stride or element
-    offset = int(accessor.get("byteOffset", 0))
+    offset = _whole_number(accessor, "byteOffset", f"{what} accessor", 0)
     needed = offset + stride * (count - 1) + element if count > 0 else 0
     if count < 0 or offset < 0 or stride < element or needed > length:
         raise MeshFormatError(

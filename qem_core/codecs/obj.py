@@ -57,7 +57,7 @@ def read_obj(data: bytes) -> Mesh:
     v_index, vt_index, vn_index = _corner_indices(b" ".join(lines[b"f"]), corner_counts)
     counters = _Counters(matches, corner_counts)
     v_index = counters.resolve(v_index, b"v", positions.shape[0])
-    triangles = fan_corners(corner_counts, "OBJ 'f' line")
+    triangles = fan_corners(corner_counts, "OBJ 'f' line", first_number=1)
     faces = v_index[triangles]
 
     attributes = {}

@@ -118,8 +118,8 @@ def _faces(lines: list[bytes]) -> np.ndarray:
     if bad.any():
         face = int(np.flatnonzero(bad)[0])
         raise MeshFormatError(
-            f"OFF face {face} says it has {corner_counts[face]!r} corners but its line holds "
-            f"{int(counts[face]) - 1} more numbers"
+            f"OFF face {face} says it has {float(corner_counts[face]):g} corners but its "
+            f"line holds {int(counts[face]) - 1} more numbers"
         )
     corner_counts = corner_counts.astype(np.int64)
     face_of_corner = np.repeat(np.arange(len(lines)), corner_counts)

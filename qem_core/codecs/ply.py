@@ -593,6 +593,6 @@ def _as_indices(items: np.ndarray) -> np.ndarray:
         if bad.any():
             value = items[np.flatnonzero(bad)[0]]
             raise MeshFormatError(
-                f"PLY face index {value!r} is not an integer vertex index in int32 range"
+                f"PLY face index {float(value):g} is not an integer vertex index in int32 range"
             )
     return items.astype(np.int64)

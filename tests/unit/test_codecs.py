@@ -469,11 +469,12 @@ def test_unknown_format_and_source_are_named():
         load_mesh(12)
 
 
-def _glb_with(change) -> bytes:
-    """The octahedron's GLB with its JSON changed by change(gltf) (lengths redone)."""
+def _glb_with(change, blob: bytes | None = None) -> bytes:
+    """A GLB (the octahedron's by default) with its JSON changed by change(gltf), lengths
+    redone."""
     import json
 
-    blob = encode_mesh(*OCTAHEDRON, "glb")
+    blob = encode_mesh(*OCTAHEDRON, "glb") if blob is None else blob
     json_length = struct.unpack_from("<I", blob, 12)[0]
     gltf = json.loads(blob[20 : 20 + json_length])
     binary = blob[20 + json_length + 8 :]
@@ -531,6 +532,41 @@ def _set_path(*path, value):
 def test_lying_glb_json_is_refused(change):
     with pytest.raises(MeshFormatError):
         load_mesh(_glb_with(change))
+
+
+@pytest.mark.parametrize(("key", "value"), [
+    ("count", 1e400),  # json.dumps writes Infinity, which Python's json reads back
+    ("count", 3.5),
+    ("count", "8"),
+    ("count", True),
+    ("byteOffset", -12),
+])  # fmt: skip
+def test_glb_counts_and_offsets_must_be_whole_numbers(key, value):
+    with pytest.raises(MeshFormatError, match=f"{key} is .*not a non-negative integer"):
+        load_mesh(_glb_with(_set_path("accessors", 0, key, value=value)))
+
+
+def test_glb_attribute_of_another_count_than_the_positions_is_named():
+    mesh = load_mesh(encode_mesh(*OCTAHEDRON, "glb"))
+    attributes = {"normal": np.tile([[0.0, 0.0, 1.0]], (mesh.n_vertices, 1))}
+
+    def shorter_normals(gltf):
+        normals = gltf["meshes"][0]["primitives"][0]["attributes"]["NORMAL"]
+        gltf["accessors"][normals]["count"] -= 1
+
+    blob = _glb_with(shorter_normals, encode_mesh(mesh.vertices, mesh.faces, "glb", attributes))
+    with pytest.raises(MeshFormatError, match="5 NORMAL values for 6 positions"):
+        load_mesh(blob)
+
+
+def test_polygon_messages_number_obj_lines_from_1_and_show_plain_numbers():
+    with pytest.raises(MeshFormatError, match="OBJ 'f' line 2 has 2 corners"):
+        load_mesh(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2\n", format="obj")
+    with pytest.raises(MeshFormatError, match="OFF face 0 says it has 2.5 corners"):
+        load_mesh(b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n2.5 0 1 2\n", format="off")
+    ply = _ply_ascii(_TRIANGLE, [[0, 1, 2]]).replace(b"3 0 1 2", b"3 0 1 2.5")
+    with pytest.raises(MeshFormatError, match="PLY face index 2.5 is not an integer"):
+        load_mesh(ply, format="ply")
 
 
 def test_glb_with_out_of_range_indices_is_refused():

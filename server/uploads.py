@@ -15,8 +15,10 @@ from __future__ import annotations
 
 import logging
 import re
+import unicodedata
 from pathlib import Path, PurePosixPath
 from typing import Any
+from urllib.parse import unquote
 
 from python_multipart.exceptions import FormParserError
 from python_multipart.multipart import MultipartParser, parse_options_header
@@ -44,7 +46,16 @@ _FIELD = "file"
 _BUFFER = 1 << 20  # write to storage in pieces of about this size
 _MULTIPART_OVERHEAD = 64 * 1024  # envelope allowed on top of the file in Content-Length
 _MAX_OTHER_FIELDS = 64 * 1024  # bytes of non-file multipart fields we are willing to skip
-_UNSAFE = re.compile(r"[\x00-\x1f\x7f]")
+# RFC 5987 extended value: charset'language'percent-encoded bytes.
+_EXTENDED_FILENAME = re.compile(
+    rb"""filename\*\s*=\s*(utf-8|iso-8859-1)'[^']*'([^;\s]+)""", re.IGNORECASE
+)
+
+
+def _is_shown(character: str) -> bool:
+    """False for control and format characters (C0, C1, the bidirectional overrides that
+    make 'gpj.ply' read as 'ylp.jpg', zero-width joiners) and for unassigned ones."""
+    return not unicodedata.category(character).startswith("C")
 
 
 def check_file_name(name: str | None) -> str | None:
@@ -55,8 +66,8 @@ def check_file_name(name: str | None) -> str | None:
     if name is None:
         return None
     base = PurePosixPath(name.replace("\\", "/")).name
-    base = _UNSAFE.sub("", base).strip()[:255]
-    if not base:
+    base = "".join(filter(_is_shown, base)).strip()[:255]
+    if base in ("", ".", ".."):
         return None
     suffix = Path(base).suffix.lower()
     if suffix and suffix not in MESH_EXTENSIONS:
@@ -184,6 +195,8 @@ class _MultipartState:
             self.in_file = True
             raw = options.get(b"filename")
             self.filename = raw.decode("utf-8", "replace") if raw is not None else None
+            if self.filename is None:
+                self.filename = _extended_filename(self.disposition)
 
     def on_part_data(self, data: bytes, start: int, end: int) -> None:
         if self.in_file:
@@ -196,6 +209,16 @@ class _MultipartState:
                     f"the multipart body carries more than {_MAX_OTHER_FIELDS} bytes "
                     f"besides the field {_FIELD!r}; send only the file",
                 )
+
+
+def _extended_filename(disposition: bytes) -> str | None:
+    """The RFC 5987 ``filename*=UTF-8''...`` of a part, which some clients send instead
+    of ``filename`` for a name outside ASCII (the multipart parser ignores it)."""
+    found = _EXTENDED_FILENAME.search(disposition)
+    if found is None:
+        return None
+    charset, encoded = found.group(1).decode("ascii"), found.group(2).decode("ascii", "replace")
+    return unquote(encoded, encoding=charset, errors="replace")
 
 
 async def _receive_multipart(request: Request, content_type: str, sink: _Sink) -> str | None:

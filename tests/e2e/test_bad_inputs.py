@@ -172,3 +172,26 @@ BAD_READS = [
 def test_bad_request(http, ready_mesh, case, method, path, params, status):
     path = path.format(mesh=f"/v1/meshes/{ready_mesh['id']}")
     assert_problem(http.request(method, path, params=params), status)
+
+
+def _multipart(disposition: bytes, content: bytes) -> dict:
+    body = b"--b\r\nContent-Disposition: " + disposition + b"\r\n\r\n" + content + b"\r\n--b--\r\n"
+    return {"headers": {"content-type": "multipart/form-data; boundary=b"}, "content": body}
+
+
+def test_names_are_read_from_rfc_5987_and_cleaned(http):
+    # filename* (RFC 5987) is what some clients send for a name outside ASCII.
+    extended = b"form-data; name=\"file\"; filename*=UTF-8''caf%C3%A9.ply"
+    accepted = http.post("/v1/meshes", **_multipart(extended, ascii_ply()))
+    assert accepted.status_code == 202, accepted.text
+    assert http.get(accepted.json()["url"]).json()["name"] == "café.ply"
+    # An extended name is checked like any other: a format that cannot be read is a 415.
+    refused = b"form-data; name=\"file\"; filename*=UTF-8''photo.jpg"
+    assert_problem(http.post("/v1/meshes", **_multipart(refused, ascii_ply())), 415)
+    # A right-to-left override would show 'bunny\u202egpj.ply' as 'bunnyylp.jpg'.
+    spoofing = http.post(
+        "/v1/meshes", params={"name": "bunny\u202egpj.ply"}, content=ascii_ply()
+    )
+    assert http.get(spoofing.json()["url"]).json()["name"] == "bunnygpj.ply"
+    dots = http.post("/v1/meshes", params={"name": ".."}, content=ascii_ply())
+    assert http.get(dots.json()["url"]).json()["name"] == "upload"

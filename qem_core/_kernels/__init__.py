@@ -8,6 +8,13 @@ of all of the package's files: an edit to any of them recompiles them all, and a
 is never stale. The locator wraps numba's own (NUMBA_CACHE_DIR, then __pycache__, then
 the user-wide folder), so where caches live does not change. If numba's internals ever
 move, the default keying is used.
+
+Compile time: numba compiles an inlined helper (``inline="always"``) anew at every call
+site, and a kernel anew for every distinct set of argument types (an int32 or an int64
+vertex id; a literal True or False). So only small helpers of the hot loop are inlined;
+a helper with a large body called from several places is a kernel of its own, called with
+int64 ids and non-literal flags. That took a cold compile of the build from about 145 s
+to 45 s, with the same run time and byte-identical levels.
 """
 
 from __future__ import annotations

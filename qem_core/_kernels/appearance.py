@@ -290,18 +290,13 @@ def _place_keeping_volume(quadric, vertices, faces, face_alive, start, count, po
 place_keeping_volume = borrowing_kernel(_place_keeping_volume)
 
 
-def _candidate_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact,
-                    rank_tolerance, quadric, position, faces, face_alive, start, count, pool,
-                    look):
-    """Cost and position of contracting (a, b), appearance and volume included;
-    ``quadric`` receives the position quadric of the new vertex (without the wedges,
-    which stay in ``group_rows`` for `merge_wedges`). Infinite when the wedges of a and
-    b do not fit the scratch space."""
+def _appearance_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact,
+                     rank_tolerance, quadric, position, faces, face_alive, start, count, pool,
+                     look):
+    """`candidate_cost` with wedges or volume: a kernel of its own, called, not inlined.
+    Inlined at each of candidate_cost's call sites it was most of the package's compile
+    time, for meshes that have neither."""
     wedge_quadrics, settings = look[1], look[8]
-    volume = settings[SETTING_VOLUME] != 0.0
-    if wedge_quadrics.shape[0] == 0 and not volume:
-        return edge_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact,
-                         rank_tolerance, quadric, position)
     contraction_quadric(vertex_quadrics, edge_quadrics, a, b, edge, exact, quadric)
     total = look[10]
     for k in range(QUADRIC_SIZE):  # a loop: an array copy would allocate (no NRT here)
@@ -316,10 +311,29 @@ def _candidate_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact,
         for i in range(n):
             if members[i, 1] == i:
                 add_schur(group_rows[i], m, total)
-    if volume:
+    if settings[SETTING_VOLUME] != 0.0:
         return place_keeping_volume(total, vertices, faces, face_alive, start, count, pool,
                                     a, b, rank_tolerance, position)
     return place(total, vertices, a, b, rank_tolerance, position)
+
+
+appearance_cost = borrowing_kernel(_appearance_cost)
+
+
+def _candidate_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact,
+                    rank_tolerance, quadric, position, faces, face_alive, start, count, pool,
+                    look):
+    """Cost and position of contracting (a, b), appearance and volume included;
+    ``quadric`` receives the position quadric of the new vertex (without the wedges,
+    which stay in ``group_rows`` for `merge_wedges`). Infinite when the wedges of a and
+    b do not fit the scratch space."""
+    if look[1].shape[0] == 0 and look[8][SETTING_VOLUME] == 0.0:
+        return edge_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact,
+                         rank_tolerance, quadric, position)
+    # int64 ids at every call site (some pass int32 ones): one compilation, not five.
+    return appearance_cost(vertices, vertex_quadrics, edge_quadrics, np.int64(a), np.int64(b),
+                           np.int64(edge), exact, rank_tolerance, quadric, position, faces,
+                           face_alive, start, count, pool, look)
 
 
 candidate_cost = numba.njit(cache=True, inline="always")(_candidate_cost)

@@ -356,15 +356,19 @@ def _update_after_contraction(vertices, vertex_quadrics, vertex_refused, edge_qu
     back, since a's change may have lifted the reason. ``retry`` is (n,) int32 scratch.
     """
     has_pairs = pair_ends.shape[0] > 0
+    # One type for the vertex and the flag at every call, so that each helper compiles
+    # once: a literal True and False, or an int32 and an int64 id, are two compilations.
+    all_edges, only_missing = np.bool_(False), np.bool_(True)
+    a = np.int64(a)
     g, n_retry = update_vertex_edges(vertices, vertex_quadrics, vertex_refused,
                                      edge_quadrics, faces, face_alive, face_edge, start,
                                      count, pool, near, generation, retry, heap_entries,
-                                     heap_position, heap_size, a, False, exact,
+                                     heap_position, heap_size, a, all_edges, exact,
                                      rank_tolerance, quadric, position, look)
     if has_pairs:
         update_vertex_pairs(vertices, vertex_quadrics, edge_quadrics, near, generation,
                             heap_entries, heap_position, heap_size, pair_ends, pair_alive,
-                            first_pair, pair_start, pair_count, pair_pool, a, g, False, exact,
+                            first_pair, pair_start, pair_count, pair_pool, a, g, all_edges, exact,
                             rank_tolerance, quadric, position, faces, face_alive, start, count,
                             pool, look)
     # Edge ax of a dying face abx lives on only if another face has it (always, unless
@@ -375,16 +379,17 @@ def _update_after_contraction(vertices, vertex_quadrics, vertex_refused, edge_qu
         if near[x, NEAR_SCRATCH] != g:
             remove(heap_entries, heap_position, heap_size, near[x, NEAR_EDGE_A])
     for i in range(n_retry):
+        v = np.int64(retry[i])
         g, _ = update_vertex_edges(vertices, vertex_quadrics, vertex_refused, edge_quadrics,
                                    faces, face_alive, face_edge, start, count, pool, near,
                                    generation, retry, heap_entries, heap_position, heap_size,
-                                   retry[i], True, exact, rank_tolerance, quadric, position,
+                                   v, only_missing, exact, rank_tolerance, quadric, position,
                                    look)
         if has_pairs:
             update_vertex_pairs(vertices, vertex_quadrics, edge_quadrics, near, generation,
                                 heap_entries, heap_position, heap_size, pair_ends, pair_alive,
-                                first_pair, pair_start, pair_count, pair_pool, retry[i], g,
-                                True, exact, rank_tolerance, quadric, position, faces,
+                                first_pair, pair_start, pair_count, pair_pool, v, g,
+                                only_missing, exact, rank_tolerance, quadric, position, faces,
                                 face_alive, start, count, pool, look)
 
 

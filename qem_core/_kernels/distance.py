@@ -29,6 +29,7 @@ import numpy as np
 
 from .adjacency import corner_of, has_corner
 from .heap import cost_key, key_cost
+from .memory import borrowing_kernel
 
 # The squared one-step distance a contraction may reach for free, in units of the mean
 # square of its plane distances. Below 4 (twice the RMS distance) ordinary contractions
@@ -157,7 +158,10 @@ def _to_new2(vertices, faces, start, count, pool, v, other, px, py, pz, qx, qy,
     return best
 
 
-to_new2 = numba.njit(cache=True, inline="always")(_to_new2)
+# to_new2 and to_old2 are called, not inlined: star_distance2 calls them five times, and
+# inlined each copy compiled its own point-triangle test (a fifth of the package's
+# compile time). Each call does a loop of face tests, so the call costs nothing measurable.
+to_new2 = borrowing_kernel(_to_new2)
 
 
 def _to_old2(vertices, faces, start, count, pool, a, b, x, qx, qy, qz, enough):
@@ -181,7 +185,7 @@ def _to_old2(vertices, faces, start, count, pool, a, b, x, qx, qy, qz, enough):
     return best
 
 
-to_old2 = numba.njit(cache=True, inline="always")(_to_old2)
+to_old2 = borrowing_kernel(_to_old2)
 
 
 def _star_distance2(vertices, faces, start, count, pool, a, b, px, py, pz,

@@ -28,6 +28,18 @@ class Grid(NamedTuple):
         low = np.asarray(low, np.float64)
         return cls(low, _steps(low, high, (1 << bits) - 1), bits)
 
+    @classmethod
+    def from_values(cls, values, bits: int) -> Grid:
+        """The grid of a stream's ``grid`` (origin x y z, step x y z); ValueError when
+        it does not describe one: 6 finite numbers, positive steps, a finite far corner
+        (with a step of 0 every vertex would land on the origin; past the float range
+        on infinity)."""
+        values = np.asarray(values, np.float64)
+        if values.shape != (6,):
+            raise ValueError("a grid is 6 numbers: origin x y z, step x y z")
+        _check_grid(values[:3], values[3:], (1 << bits) - 1)
+        return cls(values[:3], values[3:], bits)
+
     @property
     def top(self) -> np.ndarray:
         """The far corner of the box, origin + (2^bits - 1) * step."""
@@ -103,9 +115,9 @@ class AttributeGrid(NamedTuple):
             raise ValueError("names, widths and bits must be as many, at least one")
         if origin.shape != (k,) or step.shape != (k,):
             raise ValueError(f"origin and step must hold {k} numbers")
-        if not (np.isfinite(origin).all() and np.isfinite(step).all() and (step > 0).all()):
-            raise ValueError("origin and step must be finite, steps positive")
-        return cls(names, widths, bits, origin, step)
+        grid = cls(names, widths, bits, origin, step)
+        _check_grid(origin, step, grid.q_max)
+        return grid
 
 
 class QuantisedWedges(NamedTuple):
@@ -121,6 +133,15 @@ def _integer(value, low: int, high: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
         raise ValueError(f"{value!r} is not an integer in [{low}, {high}]")
     return value
+
+
+def _check_grid(origin: np.ndarray, step: np.ndarray, q_max) -> None:
+    """ValueError unless origin and step are finite, the steps positive and the far
+    corner origin + q_max * step finite."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        top = origin + q_max * step
+    if not (np.isfinite(origin).all() and (step > 0).all() and np.isfinite(top).all()):
+        raise ValueError("origin and step must be finite, steps positive, the far corner finite")
 
 
 def _steps(low: np.ndarray, high: np.ndarray, top) -> np.ndarray:

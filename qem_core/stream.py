@@ -47,15 +47,18 @@ from ._kernels.stream_coding import (
     BAD_THIRD,
     BAD_VERTEX,
     CONTEXT_SLOTS,
+    FRAME_WORK_LIMIT,
     LONG_DATA,
     NO_CORNER,
     POSITION_SYMBOLS,
     SHORT_DATA,
     SPLIT_CONTEXT,
+    TOO_MUCH_WORK,
     code_splits,
     decode_connectivity,
     encode_connectivity,
     link_corners,
+    plan_frame,
 )
 from ._kernels.wedge_coding import (
     BAD_VALUE,
@@ -66,7 +69,7 @@ from ._kernels.wedge_coding import (
     wedge_context_slots,
 )
 from .codecs.msgpack_mesh import read_msgpack, read_msgpack_wedges
-from .errors import CorruptFileError, InvalidOptionsError
+from .errors import CorruptFileError, InvalidMeshError, InvalidOptionsError
 from .progressive import ProgressiveMesh, VertexSplits
 from .quantise import AttributeGrid, Grid, QuantisedWedges
 from .wedge_stream import WEDGE_BITS, WedgeArrays, WedgeCoder, quantised_wedges, wedge_grid_for
@@ -125,6 +128,12 @@ def grid_for(pm: ProgressiveMesh, bits: int = 16) -> Grid:
 def _grid_bits(bits) -> bool:
     """Whether ``bits`` is grid bits a stream may use (an int, not a bool)."""
     return isinstance(bits, int) and not isinstance(bits, bool) and _MIN_BITS <= bits <= _MAX_BITS
+
+
+def _is_count(value) -> bool:
+    """Whether a frame's count is one: a non-negative int (msgpack's true is a Python
+    bool, an int too, which would pass for 1)."""
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
 
 
 def _close(a, b) -> bool:
@@ -351,7 +360,7 @@ def _wedge_fields(
     wedges_from, n_symbols = body["wedges_from"], body["n_wedge_symbols"]
     n_backs, n_rows = body["n_wedge_backs"], body["n_wedge_rows"]
     for value in (wedges_from, n_symbols, n_backs, n_rows):
-        if not isinstance(value, int) or value < 0:
+        if not _is_count(value):
             raise CorruptFileError(f"split frame: a wedge count is {value!r}")
     coded = np.frombuffer(_bin(body["wedges"], None, "wedges"), np.uint8)
     # Bounded before decode_wedge_fields allocates them (as _check_frame_size).
@@ -421,10 +430,18 @@ def _split_frames(
     frame_splits = min(FIRST_FRAME_SPLITS, splits_per_frame)
     start = n_from
     contexts = None  # carried from frame to frame
+    corner_counts = np.bincount(faces.ravel(), minlength=n_to).astype(np.int64)
     while start < n_to:
         stop = min(start + frame_splits, n_to)
         frame_splits = min(2 * frame_splits, splits_per_frame)
         splits = pm.splits(start, stop)
+        taken = plan_frame(
+            corner_counts, start, splits.split_vertex, splits.new_faces,
+            splits.new_face_counts, splits.relabel_offsets, FRAME_WORK_LIMIT,
+        )  # fmt: skip
+        if start + taken < stop:  # a frame the decoder would refuse as too much work
+            stop = start + taken
+            splits = pm.splits(start, stop)
         if _frame is None:
             frame, contexts = _encode_frame(splits, state, quantised, grid, wedges, contexts)
             yield frame
@@ -483,8 +500,21 @@ class SplitStreamDecoder:
         grid: Grid | None = None,
     ) -> None:
         self.quantised = np.asarray(quantised_vertices, np.int64).copy()
-        self.faces = np.asarray(faces, np.int32).copy()
+        self.faces = np.asarray(faces, np.int64).copy()
         self.grid: Grid | None = grid
+        # The frames keep these true; a start that breaks them would be refined into
+        # faces naming vertices that come later, or positions off the grid.
+        if self.quantised.ndim != 2 or self.quantised.shape[1] != 3:
+            raise InvalidMeshError(f"quantised vertices must be (n, 3), not {self.quantised.shape}")
+        if self.faces.ndim != 2 or self.faces.shape[1] != 3:
+            raise InvalidMeshError(f"faces must be (m, 3), not {self.faces.shape}")
+        _check_indices(self.faces, self.n_vertices, "a face", "vertex")
+        q_max = None if grid is None else (1 << grid.bits) - 1
+        if q_max is not None and self.quantised.size and not (
+            0 <= self.quantised.min() and self.quantised.max() <= q_max
+        ):
+            raise InvalidMeshError(f"a quantised vertex lies outside [0, {q_max}]")
+        self.faces = self.faces.astype(np.int32)
         self._contexts: np.ndarray | None = None  # as the last frame decoded left them
         self._wedge_contexts: np.ndarray | None = None  # the same, of the wedge fields
         self.wedge_grid: AttributeGrid | None = None
@@ -498,6 +528,14 @@ class SplitStreamDecoder:
                 raise InvalidOptionsError(
                     f"face wedges {self.face_wedges.shape} do not match faces {self.faces.shape}"
                 )
+            values = self.quantised_values
+            if values.ndim != 2 or values.shape[1] != len(wedges.grid.origin):
+                raise InvalidMeshError(
+                    f"wedge values must be (W, {len(wedges.grid.origin)}), not {values.shape}"
+                )
+            _check_indices(self.face_wedges, values.shape[0], "a face corner", "wedge")
+            if values.size and not (0 <= values.min() and (values <= wedges.grid.q_max).all()):
+                raise InvalidMeshError("a wedge value lies outside its grid")
 
     @classmethod
     def from_msgpack(cls, data: bytes) -> SplitStreamDecoder:
@@ -550,7 +588,7 @@ class SplitStreamDecoder:
             n_from, n_to, faces_from = body["n_from"], body["n_to"], body["faces_from"]
             n_new = body["n_new_faces"]
             for value in (n_from, n_to, faces_from, n_new):
-                if not isinstance(value, int) or value < 0:
+                if not _is_count(value):
                     raise CorruptFileError(f"split frame: a count is {value!r}")
             continues = body.get("continues", False)
             if continues is True:
@@ -570,11 +608,12 @@ class SplitStreamDecoder:
                         f"[{_MIN_BITS}, {_MAX_BITS}]"
                     )
                 grid_values = np.asarray(body["grid"], np.float64)
-                # Checked here: a short or non-finite grid would only fail later, when the
-                # caller reads `vertices`, with an unrelated error.
-                if grid_values.shape != (6,) or not np.isfinite(grid_values).all():
-                    raise CorruptFileError("split frame: 'grid' must be 6 finite numbers")
-                grid = Grid(grid_values[:3], grid_values[3:], bits)
+                # Checked here: a bad grid would only show later, when the caller reads
+                # `vertices` (an unrelated error, infinite positions, or all at one point).
+                try:
+                    grid = Grid.from_values(grid_values, bits)
+                except ValueError as error:
+                    raise CorruptFileError(f"split frame: 'grid' {error}") from None
                 if self.grid is not None:
                     if not _same_grid(grid, self.grid):
                         raise CorruptFileError(
@@ -657,6 +696,13 @@ class SplitStreamDecoder:
         )
 
 
+def _check_indices(indices: np.ndarray, n: int, what: str, named: str) -> None:
+    """InvalidMeshError unless every index lies in [0, n)."""
+    if indices.size and not (0 <= indices.min() and indices.max() < n):
+        bad = int(indices.min() if indices.min() < 0 else indices.max())
+        raise InvalidMeshError(f"{what} names {named} {bad}, of {n}")
+
+
 def _check_frame_size(n_splits: int, n_new_faces: int, n_bytes: int) -> None:
     """Refuse counts no frame of n_bytes can hold, before allocating for them: every
     split codes at least six decisions and every face three, each at least 1/189 bit
@@ -695,6 +741,10 @@ _WEDGE_STATUS = {
 _STATUS = {
     BAD_VERTEX: "a split names a vertex that does not exist yet",
     BAD_COUNT: "the splits' face counts do not add up to n_new_faces",
+    TOO_MUCH_WORK: (
+        f"the splits walk more than {FRAME_WORK_LIMIT} corners of their split vertices "
+        "(no encoder makes such a frame; it would take the decoder minutes)"
+    ),
     BAD_CODE: "a face code is not 0..6",
     BAD_THIRD: "a third corner is not a neighbour of the split vertex",
     BAD_BACK: "a new face names a vertex that does not exist yet",

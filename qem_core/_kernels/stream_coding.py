@@ -67,6 +67,15 @@ LONG_DATA = 6
 BAD_POSITION = 7
 NO_CORNER = 8
 BAD_COUNT = 9
+TOO_MUCH_WORK = 13  # after the wedge statuses (wedge_coding.py: 10-12)
+
+# Splitting s walks and sorts the corners of s, so a frame costs the sum of its split
+# vertices' corner counts: a frame that splits one vertex over and over (a fan) costs the
+# square of its length, and a crafted 24 KB frame held a decoder for 11 s. Frames of the
+# encoder stay within this many corners (``plan_frame``; a frame of one split always
+# fits); a decoder refuses a frame that goes past it. Real meshes, ~10 corners a split,
+# reach a twentieth of it in the largest frames (8192 splits).
+FRAME_WORK_LIMIT = 1 << 21
 
 # Version 3 codes the fields with the adaptive range coder (range_coder.py), split by
 # split in the order the decoder needs them. The contexts of each field, as slots of one
@@ -650,6 +659,31 @@ def _step_row(walk_length):
     return _STEP_SLOTS + min(walk_length, _STEP_ROWS - 1) * _IS
 
 
+@_kernel
+def plan_frame(corner_counts, n_from, split_vertex, new_faces, new_face_counts,
+               relabel_offsets, limit):
+    """How many of these splits (n_from.., at least one) a frame holds within ``limit``
+    (FRAME_WORK_LIMIT): the sum over its splits of the split vertex's corner count, as
+    ``decode_connectivity`` counts it. ``corner_counts`` (>= n_to,) int64 holds every
+    vertex's corner count in the level n_from and is advanced past the splits taken: a
+    split moves its relabelled corners from s to t and adds its new faces' corners."""
+    walked = 0
+    face = 0
+    for i in range(split_vertex.shape[0]):
+        s = split_vertex[i]
+        walked += corner_counts[s]
+        if i > 0 and walked > limit:
+            return i
+        moved = relabel_offsets[i + 1] - relabel_offsets[i]
+        corner_counts[s] -= moved
+        corner_counts[n_from + i] += moved
+        for _ in range(new_face_counts[i]):
+            for j in range(3):
+                corner_counts[new_faces[face, j]] += 1
+            face += 1
+    return split_vertex.shape[0]
+
+
 @numba.njit(cache=True)
 def encode_connectivity(
     faces,
@@ -994,6 +1028,7 @@ def decode_connectivity(
     prediction, work, binormal, edge, mid, axes = vectors
     corner = np.zeros(3, np.int64)
     n_relabel = 0
+    corners_walked = 0  # against FRAME_WORK_LIMIT
     face = faces_from
     face_end = faces_from + n_new_faces
     for i in range(k):
@@ -1011,6 +1046,9 @@ def decode_connectivity(
         split_vertex[i] = s
         cs, nb, mark, ys, keys = _scratch(head, nxt, s, cs, nb, mark, ys, keys)
         nc, nn = _gather(faces, head, nxt, s, cs, nb)
+        corners_walked += nc
+        if i > 0 and corners_walked > FRAME_WORK_LIMIT:
+            return TOO_MUCH_WORK, split_vertex, relabel_counts, relabel_faces[:n_relabel]
         keys[nc] = -1  # not keyed for this split yet
         _ring_shape(faces, quantised, s, cs, nc, nb, nn, context, work)
         count = rc.decode_integer(dec, data, probs, _COUNT_SLOTS, False)

@@ -67,7 +67,8 @@ ESCAPE = 255
 # Symbols 1..254 name candidates 0..253 of a corner's list; later ones are escaped.
 LISTED = 254
 
-# Decoder status codes, after stream_coding's 1..9 (0: fine); stream.py words them.
+# Decoder status codes, after stream_coding's 1..9 and before its 13 (0: fine); stream.py
+# words them.
 BAD_WEDGE = 10
 BAD_WEDGE_CORNER = 11
 BAD_VALUE = 12

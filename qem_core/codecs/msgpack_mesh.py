@@ -160,7 +160,7 @@ def read_msgpack_wedges(data: bytes) -> QuantisedWedges | None:
         raise MeshFormatError(f"'wedges' has no valid 'grid': {error}") from None
     count = _count(entry, "count")
     corner_type = entry.get("corner_type")
-    if corner_type not in _INDEX_TYPES:
+    if not isinstance(corner_type, str) or corner_type not in _INDEX_TYPES:
         raise MeshFormatError(f"'corner_type' must be one of {list(_INDEX_TYPES)}")
     n_faces = _count(message, "face_count")
     corners = _array(entry, "corners", _INDEX_TYPES[corner_type], 3 * n_faces)
@@ -194,15 +194,26 @@ def read_msgpack(data: bytes) -> Mesh:
         if not isinstance(bits, int) or isinstance(bits, bool) or bits not in range(1, 17):
             raise MeshFormatError(f"'position_bits' must be 1..16, got {bits!r}")
         quantised = _array(message, "positions", "<u2", n_vertices * 3).reshape(-1, 3)
+        if quantised.size and int(quantised.max()) >= 1 << bits:
+            raise MeshFormatError(
+                f"'positions' hold {int(quantised.max())}, past the {bits}-bit grid"
+            )
         vertices = Grid.over_box(bbox[:3], bbox[3:], bits).dequantise(quantised)
     else:
         raise MeshFormatError(f"'position_encoding' must be 'f32' or 'u16', got {encoding!r}")
     index_type = message.get("index_type")
-    if index_type not in _INDEX_TYPES:
+    if not isinstance(index_type, str) or index_type not in _INDEX_TYPES:
         raise MeshFormatError(f"'index_type' must be one of {list(_INDEX_TYPES)}")
     faces = _array(message, "indices", _INDEX_TYPES[index_type], n_faces * 3).astype(np.int64)
+    if faces.size and int(faces.max()) >= n_vertices:
+        raise MeshFormatError(
+            f"'indices' name vertex {int(faces.max())}, but 'vertex_count' is {n_vertices}"
+        )
+    attribute_map = message.get("attributes") or {}
+    if not isinstance(attribute_map, dict):
+        raise MeshFormatError("'attributes' must be a map of name to attribute")
     attributes = {}
-    for key, entry in (message.get("attributes") or {}).items():
+    for key, entry in attribute_map.items():
         if key not in _ATTRIBUTE_WIDTHS or not isinstance(entry, dict):
             raise MeshFormatError(f"unknown attribute {key!r}; known: {sorted(_ATTRIBUTE_WIDTHS)}")
         width = entry.get("components")

@@ -156,22 +156,16 @@ try {
 """
 
 
-def test_the_viewer_refuses_base_wedge_values_off_their_grid(tmp_path, seamed_pm):
-    """As msgpack_mesh.read_msgpack_wedges (tests/unit/test_stream_wedges.py)."""
+def _base_mesh_errors(tmp_path, blobs: list[bytes]) -> list[str | None]:
+    """What the viewer's decodeBaseMesh answers for each msgpack level (None: read)."""
     node = shutil.which("node")
     if node is None:
         pytest.fail("node is missing: it is needed for the viewer's packages (npm ci)")
     require_web_packages()
     driver = tmp_path / "driver.mjs"
     driver.write_text(_BASE_DRIVER)
-    n = seamed_pm.n_base
-    wedges = quantised_wedges(seamed_pm, n)
     answers = []
-    for values in (wedges.values, np.full_like(wedges.values, 255 + 1)):  # colours: 8 bits
-        blob = codecs.encode_mesh(
-            *seamed_pm.lod(n), "msgpack", quantize_bits=16, grid_box=seamed_pm.position_bounds,
-            wedges=wedges._replace(values=values),
-        )  # fmt: skip
+    for blob in blobs:
         (tmp_path / "base.msgpack").write_bytes(blob)
         done = subprocess.run(
             [node, str(driver), str(WEB / "js" / "refine.js"), str(tmp_path / "base.msgpack")],
@@ -181,4 +175,44 @@ def test_the_viewer_refuses_base_wedge_values_off_their_grid(tmp_path, seamed_pm
         )
         assert done.returncode == 0, done.stderr
         answers.append(json.loads(done.stdout)["error"])
-    assert answers == [None, "WireFormatError: base mesh: 'wedges' values lie outside their grid"]
+    return answers
+
+
+def test_the_viewer_refuses_base_wedge_values_off_their_grid(tmp_path, seamed_pm):
+    """As msgpack_mesh.read_msgpack_wedges (tests/unit/test_stream_wedges.py)."""
+    n = seamed_pm.n_base
+    wedges = quantised_wedges(seamed_pm, n)
+    blobs = [
+        codecs.encode_mesh(
+            *seamed_pm.lod(n), "msgpack", quantize_bits=16, grid_box=seamed_pm.position_bounds,
+            wedges=wedges._replace(values=values),
+        )  # fmt: skip
+        for values in (wedges.values, np.full_like(wedges.values, 255 + 1))  # colours: 8 bits
+    ]
+    assert _base_mesh_errors(tmp_path, blobs) == [
+        None,
+        "WireFormatError: base mesh: 'wedges' values lie outside their grid",
+    ]
+
+
+def test_both_decoders_refuse_a_base_mesh_they_could_not_refine(tmp_path, pm):
+    """Faces naming a vertex past the level's, integers past its grid: as read_msgpack."""
+    n = pm.n_base + 5
+    served = msgpack.unpackb(
+        codecs.encode_mesh(*pm.lod(n), "msgpack", quantize_bits=16, grid_box=pm.position_bounds)
+    )
+    indices = bytearray(served["indices"])
+    indices[0] = n  # u8 indices on this small level: one past the last vertex
+    positions = np.frombuffer(served["positions"], "<u2").copy()
+    positions[0] = 1 << 12
+    blobs = [
+        msgpack.packb({**served, "indices": bytes(indices)}),
+        msgpack.packb({**served, "positions": positions.tobytes(), "position_bits": 12}),
+    ]
+    assert _base_mesh_errors(tmp_path, blobs) == [
+        f"WireFormatError: base mesh: 'indices' name a vertex past 'vertex_count' {n}",
+        "WireFormatError: base mesh: 'positions' hold values past the 12-bit grid",
+    ]
+    for blob, python in zip(blobs, ["name vertex", "past the 12-bit grid"], strict=True):
+        with pytest.raises(qem_core.MeshFormatError, match=python):
+            SplitStreamDecoder.from_msgpack(blob)

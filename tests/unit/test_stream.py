@@ -273,6 +273,11 @@ def _field_bytes(key, transform):
     return change
 
 
+def _moved_grid(change):
+    """The frame's grid [origin xyz, step xyz] changed by change(grid list)."""
+    return lambda body: {**body, "grid": change(list(body["grid"]))}
+
+
 def _flip_middle(coded: bytes) -> bytes:
     middle = len(coded) // 2
     return coded[:middle] + bytes([coded[middle] ^ 0x10]) + coded[middle + 1 :]
@@ -295,6 +300,13 @@ def _flip_middle(coded: bytes) -> bytes:
     _with(grid=[0.0, 1.0]),
     _with(grid="origin"),
     _with(grid=[0.0, 0.0, 0.0, 1.0, float("nan"), 1.0]),
+    # Steps of 0 put every vertex at the origin, negative ones mirror it, and a far
+    # corner past the float range makes vertices infinite.
+    _moved_grid(lambda g: [*g[:3], 0.0, 0.0, 0.0]),
+    _moved_grid(lambda g: [*g[:3], -g[3], g[4], g[5]]),
+    _moved_grid(lambda g: [*g[:3], 1e308, g[4], g[5]]),
+    _with(n_new_faces=True),  # msgpack's true, a Python bool: an int too
+    _with(n_from=False),
     _with(bits="sixteen"),
     _with(continues=True),  # the stream's first frame: there are no contexts to go on with
     _with(continues="yes"),
@@ -439,11 +451,6 @@ def test_a_first_frame_with_bits_off_their_range_is_refused(pm, bits):
         _fresh_decoder(pm).feed(_rewrite(_first_frame(pm), _with(bits=bits)))
 
 
-def _moved_grid(change):
-    """The frame's grid [origin xyz, step xyz] changed by change(grid list)."""
-    return lambda body: {**body, "grid": change(list(body["grid"]))}
-
-
 @pytest.mark.parametrize("change", [
     _moved_grid(lambda g: [g[0] + 1.0, *g[1:]]),
     _moved_grid(lambda g: [*g[:3], g[3] * 2, *g[4:]]),
@@ -533,3 +540,132 @@ def test_a_value_the_coder_cannot_take_is_an_error_not_a_hang(pm):
         array.flat[0] = value
         with pytest.raises(ValueError, match="cannot code"):
             range_code_fields(symbols._replace(**{field: array}))
+
+
+def _served(pm, n, **fields):
+    """The msgpack level lod(n) on the stream's grid, its fields changed by ``fields``."""
+    vertices, faces = pm.lod(n)
+    served = qem_core.encode_mesh(
+        vertices, faces, "msgpack", quantize_bits=16, grid_box=pm.position_bounds
+    )
+    return msgpack.packb({**msgpack.unpackb(served), **fields})
+
+
+@pytest.mark.parametrize("fields", [
+    {"attributes": [1]},
+    {"attributes": "normal"},
+    {"index_type": {}},
+    {"index_type": ["u8"]},
+])  # fmt: skip
+def test_a_served_level_of_the_wrong_shape_is_refused_clearly(pm, fields):
+    with pytest.raises(qem_core.MeshFormatError):
+        SplitStreamDecoder.from_msgpack(_served(pm, pm.n_base, **fields))
+
+
+def test_a_start_that_frames_could_not_refine_is_refused(pm):
+    """A start whose faces name vertices it does not hold (or that come later), or whose
+    integers lie off the grid, is refused: frames would refine it into a broken mesh."""
+    n = pm.n_base + 5
+    message = msgpack.unpackb(_served(pm, n))
+    indices = bytearray(message["indices"])
+    indices[0] = n  # index_type u8 on this small level: vertex n, one past the last
+    with pytest.raises(qem_core.MeshFormatError, match="name vertex"):
+        SplitStreamDecoder.from_msgpack(_served(pm, n, indices=bytes(indices)))
+    positions = np.frombuffer(message["positions"], "<u2").copy()
+    positions[0] = 65535
+    fine = SplitStreamDecoder.from_msgpack(_served(pm, n, positions=positions.tobytes()))
+    assert fine.quantised.max() == 65535  # the top of a 16-bit grid is on it
+    with pytest.raises(qem_core.MeshFormatError, match="past the 8-bit grid"):
+        SplitStreamDecoder.from_msgpack(
+            _served(pm, n, positions=positions.tobytes(), position_bits=8)
+        )
+    vertices, faces = pm.lod(n)
+    grid = grid_for(pm)
+    quantised = grid.quantise(vertices)
+    for bad_faces in (faces + 1, -faces - 1, np.where(faces == 0, n + 3, faces)):
+        with pytest.raises(qem_core.InvalidMeshError, match="names vertex"):
+            SplitStreamDecoder(quantised, bad_faces, grid=grid)
+    with pytest.raises(qem_core.InvalidMeshError, match="outside"):
+        SplitStreamDecoder(quantised + 70_000, faces, grid=grid)
+    with pytest.raises(qem_core.InvalidMeshError, match="must be"):
+        SplitStreamDecoder(quantised[:, :2], faces, grid=grid)
+
+
+def test_a_start_whose_wedges_frames_could_not_refine_is_refused(spot_pm):
+    n = spot_pm.n_base + 5
+    vertices, faces = spot_pm.lod(n)
+    quantised = grid_for(spot_pm).quantise(vertices)
+    held = quantised_wedges(spot_pm, n)
+    SplitStreamDecoder(quantised, faces, held)  # as it is: fine
+    past_the_last, negative = held.face_wedges.copy(), held.face_wedges.copy()
+    past_the_last[0, 0] = held.values.shape[0]
+    negative[-1, 2] = -1
+    for bad in (held._replace(face_wedges=past_the_last), held._replace(face_wedges=negative)):
+        with pytest.raises(qem_core.InvalidMeshError, match="names wedge"):
+            SplitStreamDecoder(quantised, faces, bad)
+    with pytest.raises(qem_core.InvalidMeshError, match="outside its grid"):
+        SplitStreamDecoder(quantised, faces, held._replace(values=held.values + (1 << 20)))
+    with pytest.raises(qem_core.InvalidMeshError, match="wedge values must be"):
+        SplitStreamDecoder(quantised, faces, held._replace(values=held.values[:, :1]))
+
+
+# -- work per frame ---------------------------------------------------------------------
+
+
+def _disc(n: int):
+    """n triangles round one centre vertex, whose last splits have ~n corners each."""
+    angles = np.arange(n) * 2 * np.pi / n
+    rim = np.stack([np.cos(angles), np.sin(angles), 0 * angles], axis=1)
+    return np.vstack([[0.0, 0.0, 0.0], rim]), [[0, 1 + i, 1 + (i + 1) % n] for i in range(n)]
+
+
+def test_frames_stay_within_the_work_a_decoder_accepts(monkeypatch):
+    """A frame's work is the sum over its splits of the split vertex's corners (the
+    decoder walks and sorts them); frames end before it passes FRAME_WORK_LIMIT. With a
+    small limit, a disc's stream comes in frames that each stay within it, and decodes."""
+    pm = qem_core.build(*_disc(300))
+    limit = 150  # below the largest split's own work: that split is a frame alone
+    monkeypatch.setattr(qem_core.stream, "FRAME_WORK_LIMIT", limit)
+    frames = list(iter_frames(encode_split_frames(pm, pm.n_base, pm.n_full)))
+    work = []  # the reference: corners of s in the level it splits, split by split
+    for n in range(pm.n_base, pm.n_full):
+        s = pm.splits(n, n + 1).split_vertex[0]
+        work.append(int(np.count_nonzero(pm.lod(n)[1] == s)))
+    assert max(work) > limit and sum(work) > 5 * limit
+    decoder = _fresh_decoder(pm)
+    for payload in frames:
+        body = msgpack.unpackb(payload[:-4])
+        frame_work = work[body["n_from"] - pm.n_base : body["n_to"] - pm.n_base]
+        assert sum(frame_work) <= limit or len(frame_work) == 1
+        if body["n_to"] < pm.n_full:  # the next split would not have fitted
+            assert sum(frame_work) + work[body["n_to"] - pm.n_base] > limit
+        decoder.feed(payload)
+    _check_decoded(pm, decoder, pm.n_full)
+    assert len(frames) > 5
+
+
+def test_a_frame_past_the_work_limit_is_refused():
+    """Regression: 300 splits of one vertex, each adding 64 faces to it, in a 7 KB frame
+    (the encoder's planner never makes one): 2.9 million corners to walk, refused."""
+    from qem_core import stream
+    from qem_core.progressive import VertexSplits
+
+    vertices = np.array([[x, y, 0] for y in range(3) for x in range(3)], float)
+    faces = np.array([[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4], [3, 4, 7], [3, 7, 6],
+                      [4, 5, 8], [4, 8, 7]])  # fmt: skip
+    grid = stream.Grid.over_box([0, 0, 0], [2, 2, 1], 16)
+    quantised = grid.quantise(vertices)
+    k, per = 300, 64
+    new_faces = np.array([[0, 9 + i, 1] for i in range(k) for _ in range(per)], np.int32)
+    splits = VertexSplits(
+        9, 9 + k, 8, np.zeros(k, np.int32), np.tile(grid.dequantise(quantised[0]), (k, 2, 1)),
+        new_faces, np.full(k, per, np.int32), np.zeros(k + 1, np.int64), np.zeros(0, np.int32),
+    )  # fmt: skip
+    held = np.zeros((9 + k, 3), np.int64)
+    held[:9] = quantised
+    state = stream._state(faces, 9 + k, 8 + k * per)
+    payload = stream._encode_frame(splits, state, held, grid, None, None)[0][4:]
+    decoder = SplitStreamDecoder(quantised, faces, grid=grid)
+    with pytest.raises(qem_core.CorruptFileError, match="walk more than"):
+        decoder.feed(payload)
+    assert decoder.n_vertices == 9  # left as it was

@@ -41,6 +41,8 @@ const DIFF_BITS = 13; // as stream_coding.py: shifts that keep products below 2^
 const NORMAL_BITS = 12;
 const LAPLACE_BITS = 20;
 const FRAME_SPLIT_LIMIT = 1 << 16; // as qem_core.stream: what one frame may allocate
+// As stream_coding.FRAME_WORK_LIMIT: the corners of split vertices one frame may walk.
+const FRAME_WORK_LIMIT = 1 << 21;
 const FRAME_FACE_LIMIT = 1 << 22;
 const ITEMS_PER_BYTE = 512;
 const MIN_BITS = 8; // the grid bits a frame may carry (qem_core.stream, grid_for)
@@ -164,13 +166,22 @@ export function decodeBaseMesh(bytes) {
     fail(`base mesh: 'position_bits' must be 1..16, got ${bits}`);
   }
   const texture = message.texture instanceof Uint8Array ? message.texture : null;
+  // As qem_core.codecs.msgpack_mesh.read_msgpack: splits refine only a level whose faces
+  // name its own vertices and whose integers lie on its grid.
+  const positions = binArray(message.positions, Uint16Array, 3 * nVertices, "positions");
+  const indices = binArray(message.indices, IndexType, 3 * nFaces, "indices");
+  const top = 2 ** bits - 1;
+  if (positions.some((q) => q > top)) fail(`base mesh: 'positions' hold values past the ${bits}-bit grid`);
+  if (indices.some((v) => v >= nVertices)) {
+    fail(`base mesh: 'indices' name a vertex past 'vertex_count' ${nVertices}`);
+  }
   return {
     nVertices,
     nFaces,
     bbox,
     bits,
-    positions: binArray(message.positions, Uint16Array, 3 * nVertices, "positions"),
-    indices: binArray(message.indices, IndexType, 3 * nFaces, "indices"),
+    positions,
+    indices,
     wedges: message.wedges === undefined ? null : decodeBaseWedges(message.wedges, nFaces),
     texture: texture && { bytes: texture, type: message.texture_type },
   };
@@ -654,6 +665,7 @@ export class ProgressiveLevels {
     const mid = [0, 0, 0];
     const axes = [0, 1, 2];
     const slots = [0, 0];
+    let cornersWalked = 0;
     for (let i = 0; i < k; i++) {
       if (coder.broken) short();
       const t = nFrom + i;
@@ -665,6 +677,10 @@ export class ProgressiveLevels {
       const s = lo + coder.uniform(probs, S_SLOTS, hi - lo);
       state.gather(s);
       const { nc, nn } = state;
+      cornersWalked += nc;
+      if (i > 0 && cornersWalked > FRAME_WORK_LIMIT) {
+        fail(`split frame: the splits walk more than ${FRAME_WORK_LIMIT} corners of their split vertices`);
+      }
       state.keysFor = null; // the fan keys are not this split's yet
       state.ringShape(s, nc, nn, shape);
       const count = coder.integer(probs, COUNT_SLOTS, false);

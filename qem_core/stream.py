@@ -125,15 +125,15 @@ def grid_for(pm: ProgressiveMesh, bits: int = 16) -> Grid:
     return Grid.over_box(*pm.position_bounds, bits)
 
 
+def _is_integer(value, low: int = 0, high: float = float("inf")) -> bool:
+    """Whether ``value`` is an int in [low, high] (a frame's count by default), not a
+    bool: msgpack's true is a Python bool, an int too, which would pass for 1."""
+    return isinstance(value, int) and not isinstance(value, bool) and low <= value <= high
+
+
 def _grid_bits(bits) -> bool:
-    """Whether ``bits`` is grid bits a stream may use (an int, not a bool)."""
-    return isinstance(bits, int) and not isinstance(bits, bool) and _MIN_BITS <= bits <= _MAX_BITS
-
-
-def _is_count(value) -> bool:
-    """Whether a frame's count is one: a non-negative int (msgpack's true is a Python
-    bool, an int too, which would pass for 1)."""
-    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+    """Whether ``bits`` is grid bits a stream may use."""
+    return _is_integer(bits, _MIN_BITS, _MAX_BITS)
 
 
 def _close(a, b) -> bool:
@@ -360,7 +360,7 @@ def _wedge_fields(
     wedges_from, n_symbols = body["wedges_from"], body["n_wedge_symbols"]
     n_backs, n_rows = body["n_wedge_backs"], body["n_wedge_rows"]
     for value in (wedges_from, n_symbols, n_backs, n_rows):
-        if not _is_count(value):
+        if not _is_integer(value):
             raise CorruptFileError(f"split frame: a wedge count is {value!r}")
     coded = np.frombuffer(_bin(body["wedges"], None, "wedges"), np.uint8)
     # Bounded before decode_wedge_fields allocates them (as _check_frame_size).
@@ -500,21 +500,18 @@ class SplitStreamDecoder:
         grid: Grid | None = None,
     ) -> None:
         self.quantised = np.asarray(quantised_vertices, np.int64).copy()
-        self.faces = np.asarray(faces, np.int64).copy()
+        faces = np.asarray(faces, np.int64)  # checked before the int32 copy could wrap
         self.grid: Grid | None = grid
         # The frames keep these true; a start that breaks them would be refined into
         # faces naming vertices that come later, or positions off the grid.
         if self.quantised.ndim != 2 or self.quantised.shape[1] != 3:
             raise InvalidMeshError(f"quantised vertices must be (n, 3), not {self.quantised.shape}")
-        if self.faces.ndim != 2 or self.faces.shape[1] != 3:
-            raise InvalidMeshError(f"faces must be (m, 3), not {self.faces.shape}")
-        _check_indices(self.faces, self.n_vertices, "a face", "vertex")
-        q_max = None if grid is None else (1 << grid.bits) - 1
-        if q_max is not None and self.quantised.size and not (
-            0 <= self.quantised.min() and self.quantised.max() <= q_max
-        ):
-            raise InvalidMeshError(f"a quantised vertex lies outside [0, {q_max}]")
-        self.faces = self.faces.astype(np.int32)
+        if faces.ndim != 2 or faces.shape[1] != 3:
+            raise InvalidMeshError(f"faces must be (m, 3), not {faces.shape}")
+        _check_indices(faces, self.n_vertices, "a face", "vertex")
+        if grid is not None:
+            _check_on_grid(self.quantised, (1 << grid.bits) - 1, "a quantised vertex")
+        self.faces = faces.astype(np.int32)
         self._contexts: np.ndarray | None = None  # as the last frame decoded left them
         self._wedge_contexts: np.ndarray | None = None  # the same, of the wedge fields
         self.wedge_grid: AttributeGrid | None = None
@@ -534,8 +531,7 @@ class SplitStreamDecoder:
                     f"wedge values must be (W, {len(wedges.grid.origin)}), not {values.shape}"
                 )
             _check_indices(self.face_wedges, values.shape[0], "a face corner", "wedge")
-            if values.size and not (0 <= values.min() and (values <= wedges.grid.q_max).all()):
-                raise InvalidMeshError("a wedge value lies outside its grid")
+            _check_on_grid(values, wedges.grid.q_max, "a wedge value")
 
     @classmethod
     def from_msgpack(cls, data: bytes) -> SplitStreamDecoder:
@@ -588,7 +584,7 @@ class SplitStreamDecoder:
             n_from, n_to, faces_from = body["n_from"], body["n_to"], body["faces_from"]
             n_new = body["n_new_faces"]
             for value in (n_from, n_to, faces_from, n_new):
-                if not _is_count(value):
+                if not _is_integer(value):
                     raise CorruptFileError(f"split frame: a count is {value!r}")
             continues = body.get("continues", False)
             if continues is True:
@@ -701,6 +697,13 @@ def _check_indices(indices: np.ndarray, n: int, what: str, named: str) -> None:
     if indices.size and not (0 <= indices.min() and indices.max() < n):
         bad = int(indices.min() if indices.min() < 0 else indices.max())
         raise InvalidMeshError(f"{what} names {named} {bad}, of {n}")
+
+
+def _check_on_grid(values: np.ndarray, q_max, what: str) -> None:
+    """InvalidMeshError unless every value lies in [0, q_max] (a bound, or one per
+    column)."""
+    if values.size and not (values.min() >= 0 and (values <= q_max).all()):
+        raise InvalidMeshError(f"{what} lies outside its grid [0, 2^bits - 1]")
 
 
 def _check_frame_size(n_splits: int, n_new_faces: int, n_bytes: int) -> None:

@@ -194,9 +194,11 @@ class _MultipartState:
             self.found = True
             self.in_file = True
             raw = options.get(b"filename")
-            self.filename = raw.decode("utf-8", "replace") if raw is not None else None
-            if self.filename is None:
-                self.filename = _extended_filename(self.disposition)
+            self.filename = (
+                raw.decode("utf-8", "replace")
+                if raw is not None
+                else _extended_filename(self.disposition)
+            )
 
     def on_part_data(self, data: bytes, start: int, end: int) -> None:
         if self.in_file:

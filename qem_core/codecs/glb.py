@@ -349,19 +349,17 @@ def _read_meshes(gltf: dict, buffers: list[bytes]) -> Mesh:
                 )
             positions.append(vertices.astype(np.float64))
             faces.append(indices.reshape(-1, 3) + offset)
-            primitive_attributes = {
-                name: _accessor(gltf, buffers, names[key], key, normalized=True)
-                for key, name in _ATTRIBUTES.items()
-                if key in names
-            }
+            primitive_attributes = {}
             for key, name in _ATTRIBUTES.items():
-                if name in primitive_attributes and (
-                    primitive_attributes[name].shape[0] != vertices.shape[0]
-                ):
+                if key not in names:
+                    continue
+                values = _accessor(gltf, buffers, names[key], key, normalized=True)
+                if values.shape[0] != vertices.shape[0]:
                     raise MeshFormatError(
-                        f"GLB primitive has {primitive_attributes[name].shape[0]} {key} "
-                        f"values for {vertices.shape[0]} positions; each vertex needs one"
+                        f"GLB primitive has {values.shape[0]} {key} values for "
+                        f"{vertices.shape[0]} positions; each vertex needs one"
                     )
+                primitive_attributes[name] = values
             attributes.append(primitive_attributes)
             offset += vertices.shape[0]
     if first_primitive is None:
@@ -450,7 +448,7 @@ def _view_bytes(gltf: dict, buffers: list[bytes], index: object) -> tuple[bytes,
     buffer = buffers[buffer_index]
     start = _whole_number(view, "byteOffset", f"bufferView {index}", 0)
     length = _whole_number(view, "byteLength", f"bufferView {index}")
-    if start < 0 or length < 0 or start + length > len(buffer):
+    if start + length > len(buffer):
         raise MeshFormatError(
             f"GLB bufferView {index} spans bytes {start}..{start + length} of a "
             f"{len(buffer)}-byte buffer: the file is truncated or damaged"
@@ -492,7 +490,7 @@ def _accessor(
     stride = stride or element
     offset = _whole_number(accessor, "byteOffset", f"{what} accessor", 0)
     needed = offset + stride * (count - 1) + element if count > 0 else 0
-    if count < 0 or offset < 0 or stride < element or needed > length:
+    if stride < element or needed > length:
         raise MeshFormatError(
             f"GLB {what} accessor needs {needed} bytes ({count} values) but its bufferView "
             f"has {length}: the file is truncated or damaged"

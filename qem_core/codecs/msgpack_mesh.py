@@ -159,11 +159,9 @@ def read_msgpack_wedges(data: bytes) -> QuantisedWedges | None:
     except (TypeError, KeyError, ValueError, AttributeError) as error:
         raise MeshFormatError(f"'wedges' has no valid 'grid': {error}") from None
     count = _count(entry, "count")
-    corner_type = entry.get("corner_type")
-    if not isinstance(corner_type, str) or corner_type not in _INDEX_TYPES:
-        raise MeshFormatError(f"'corner_type' must be one of {list(_INDEX_TYPES)}")
+    corner_dtype = _index_dtype(entry, "corner_type")
     n_faces = _count(message, "face_count")
-    corners = _array(entry, "corners", _INDEX_TYPES[corner_type], 3 * n_faces)
+    corners = _array(entry, "corners", corner_dtype, 3 * n_faces)
     if corners.size and int(corners.max()) >= count:
         raise MeshFormatError(f"'wedges' corners name a wedge beyond its count {count}")
     k = int(sum(grid.widths))
@@ -201,10 +199,8 @@ def read_msgpack(data: bytes) -> Mesh:
         vertices = Grid.over_box(bbox[:3], bbox[3:], bits).dequantise(quantised)
     else:
         raise MeshFormatError(f"'position_encoding' must be 'f32' or 'u16', got {encoding!r}")
-    index_type = message.get("index_type")
-    if not isinstance(index_type, str) or index_type not in _INDEX_TYPES:
-        raise MeshFormatError(f"'index_type' must be one of {list(_INDEX_TYPES)}")
-    faces = _array(message, "indices", _INDEX_TYPES[index_type], n_faces * 3).astype(np.int64)
+    index_dtype = _index_dtype(message, "index_type")
+    faces = _array(message, "indices", index_dtype, n_faces * 3).astype(np.int64)
     if faces.size and int(faces.max()) >= n_vertices:
         raise MeshFormatError(
             f"'indices' name vertex {int(faces.max())}, but 'vertex_count' is {n_vertices}"
@@ -265,6 +261,14 @@ def _index_type(n_vertices: int) -> str:
     if n_vertices <= 1 << 16:
         return "u16"
     return "u32"
+
+
+def _index_dtype(entry: dict, key: str) -> np.dtype:
+    """The numpy type an index type field ("u8", "u16", "u32") names."""
+    name = entry.get(key)
+    if not isinstance(name, str) or name not in _INDEX_TYPES:  # a list or map: unhashable
+        raise MeshFormatError(f"'{key}' must be one of {list(_INDEX_TYPES)}")
+    return _INDEX_TYPES[name]
 
 
 def _count(message: dict, key: str) -> int:

@@ -21,9 +21,15 @@ import pytest
 
 import qem_core
 from qem_core import codecs
-from qem_core.stream import SplitStreamDecoder, encode_split_frames, iter_frames, quantised_wedges
+from qem_core.stream import (
+    SplitStreamDecoder,
+    encode_split_frames,
+    grid_for,
+    iter_frames,
+    quantised_wedges,
+)
 from tests.tiny_meshes import icosphere, perforated_icosphere
-from tests.unit.test_stream import _disc, off_grid_frame
+from tests.unit.test_stream import _disc, off_grid_frame, one_vertex_frame
 from tests.wedge_meshes import seamed_mesh, with_wedge_arrays
 
 from .test_viewer import WEB, pm_digest, require_web_packages, run_refine_js
@@ -222,23 +228,9 @@ def test_both_decoders_refuse_a_frame_past_the_work_limit(tmp_path):
     """A frame whose splits split vertex 0 again and again, each adding a face to it:
     4.5 million corners to walk (the encoder's planner never makes such a frame), refused
     by both decoders once they pass FRAME_WORK_LIMIT."""
-    from qem_core import stream
-    from qem_core.progressive import VertexSplits
-
     pm = qem_core.build(*_disc(3000))
     vertices, faces = pm.lod(pm.n_base)
-    k = pm.n_full - pm.n_base
-    grid = stream.grid_for(pm)
-    held = np.zeros((pm.n_full, 3), np.int64)
-    held[: pm.n_base] = grid.quantise(vertices)
-    new_faces = np.array([[0, pm.n_base + i, 1] for i in range(k)], np.int32)
-    splits = VertexSplits(
-        pm.n_base, pm.n_full, faces.shape[0], np.zeros(k, np.int32),
-        np.tile(vertices[0], (k, 2, 1)), new_faces, np.ones(k, np.int32),
-        np.zeros(k + 1, np.int64), np.zeros(0, np.int32),
-    )  # fmt: skip
-    state = stream._state(faces, pm.n_full, faces.shape[0] + k)
-    payload = stream._encode_frame(splits, state, held, grid, None, None)[0][4:]
+    payload = one_vertex_frame(vertices, faces, grid_for(pm), k=pm.n_full - pm.n_base, per=1)
     answer, python = _refusals(tmp_path, pm, payload)
     message = "split frame: the splits walk more than 2097152 corners of their split vertices"
     assert answer == {"error": f"WireFormatError: {message}", "held": pm.n_base}

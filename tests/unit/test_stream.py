@@ -644,28 +644,34 @@ def test_frames_stay_within_the_work_a_decoder_accepts(monkeypatch):
     assert len(frames) > 5
 
 
-def test_a_frame_past_the_work_limit_is_refused():
-    """Regression: 300 splits of one vertex, each adding 64 faces to it, in a 7 KB frame
-    (the encoder's planner never makes one): 2.9 million corners to walk, refused."""
+def one_vertex_frame(vertices, faces, grid, k: int, per: int) -> bytes:
+    """A frame payload of k splits of vertex 0 on lod (vertices, faces), each adding
+    ``per`` faces (0, t, 1) to it, vertex 1 a neighbour of 0 (the encoder's planner
+    never makes such a frame: its work grows with the square of k)."""
     from qem_core import stream
     from qem_core.progressive import VertexSplits
 
+    n, m = vertices.shape[0], faces.shape[0]
+    new_faces = np.array([[0, n + i, 1] for i in range(k) for _ in range(per)], np.int32)
+    splits = VertexSplits(
+        n, n + k, m, np.zeros(k, np.int32), np.tile(vertices[0], (k, 2, 1)), new_faces,
+        np.full(k, per, np.int32), np.zeros(k + 1, np.int64), np.zeros(0, np.int32),
+    )  # fmt: skip
+    held = np.zeros((n + k, 3), np.int64)
+    held[:n] = grid.quantise(vertices)
+    state = stream._state(faces, n + k, m + k * per)
+    return stream._encode_frame(splits, state, held, grid, None, None)[0][4:]
+
+
+def test_a_frame_past_the_work_limit_is_refused():
+    """Regression: 300 splits of one vertex, each adding 64 faces to it, in a 7 KB frame:
+    2.9 million corners to walk, refused."""
     vertices = np.array([[x, y, 0] for y in range(3) for x in range(3)], float)
     faces = np.array([[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4], [3, 4, 7], [3, 7, 6],
                       [4, 5, 8], [4, 8, 7]])  # fmt: skip
-    grid = stream.Grid.over_box([0, 0, 0], [2, 2, 1], 16)
-    quantised = grid.quantise(vertices)
-    k, per = 300, 64
-    new_faces = np.array([[0, 9 + i, 1] for i in range(k) for _ in range(per)], np.int32)
-    splits = VertexSplits(
-        9, 9 + k, 8, np.zeros(k, np.int32), np.tile(grid.dequantise(quantised[0]), (k, 2, 1)),
-        new_faces, np.full(k, per, np.int32), np.zeros(k + 1, np.int64), np.zeros(0, np.int32),
-    )  # fmt: skip
-    held = np.zeros((9 + k, 3), np.int64)
-    held[:9] = quantised
-    state = stream._state(faces, 9 + k, 8 + k * per)
-    payload = stream._encode_frame(splits, state, held, grid, None, None)[0][4:]
-    decoder = SplitStreamDecoder(quantised, faces, grid=grid)
+    grid = qem_core.stream.Grid.over_box([0, 0, 0], [2, 2, 1], 16)
+    payload = one_vertex_frame(vertices, faces, grid, k=300, per=64)
+    decoder = SplitStreamDecoder(grid.quantise(vertices), faces, grid=grid)
     with pytest.raises(qem_core.CorruptFileError, match="walk more than"):
         decoder.feed(payload)
     assert decoder.n_vertices == 9  # left as it was

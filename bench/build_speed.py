@@ -63,10 +63,16 @@ DEFAULT_FRACTION = 0.02
 STAGES = (
     ("prepare: validate, weld, duplicate faces, edges, components", "qem_core.simplify",
      "prepare_mesh_and_edges"),
+    ("z-order of a mesh built in rounds (rounds.spatial_order)", "qem_core.simplify",
+     "spatial_order"),
+    ("edges of the z-ordered mesh", "qem_core.simplify", "unique_edges"),
     ("quadrics of faces, borders and vertices", "qem_core.simplify", "_initial_complex"),
     ("vertex -> face lists", "qem_core.simplify", "make_face_lists"),
-    ("first costs and heap (parallel)", "qem_core.simplify", "fill_heap"),
-    ("contraction loop", "qem_core.simplify", "run_contractions"),
+    ("parallel rounds: cuts, heaps, two loops in threads, merges", "qem_core.simplify",
+     "contract_in_rounds"),
+    ("costs and heap of the serial loop (parallel)", "qem_core.simplify", "fill_heap"),
+    ("serial contraction loop", "qem_core.simplify", "run_contractions"),
+    ("back to the input's numbering", "qem_core.simplify", "in_input_order"),
     ("assemble the progressive mesh", "qem_core.simplify", "_assemble"),
 )
 

@@ -87,6 +87,16 @@ class BuildOptions:
         for about a quarter more build time on the dragon (README). Contractions whose
         two stars hold more than 128 faces (a vertex of very high degree) skip the term:
         its search grows with the square of the star.
+    parallel_rounds : bool
+        Contract the geometry of a mesh of more than 65536 vertices in parallel rounds
+        (rounds.py): the live mesh is cut in two halves, with a band of frozen vertices
+        between them, and each half is contracted greedily by a thread of its own up to
+        a common cost; the two sequences are merged by cost, and the next round cuts
+        along another axis. The order is the greedy one except that the band's cheap
+        contractions wait a round, and the result does not depend on the number of
+        cores or threads. About 1.3x faster on two cores (README). False: one strictly
+        greedy sequence, as for smaller meshes, meshes with appearance attributes, pairs
+        or volume preservation.
     """
 
     weighting: Weighting = "sqrt_area"
@@ -101,6 +111,7 @@ class BuildOptions:
     color_weight: float = 1.0
     normal_weight: float = 0.5
     distance_weight: float = 2.0
+    parallel_rounds: bool = True
 
     def __post_init__(self) -> None:
         if self.weighting not in WEIGHTING_CODES:
@@ -115,7 +126,8 @@ class BuildOptions:
             # Stored as a Python float: numpy scalars are accepted, and the options
             # stay JSON-serialisable (the server keeps them in its metadata).
             object.__setattr__(self, name, _checked_number(name, getattr(self, name), low, high))
-        for name in ("preserve_topology", "merge_coincident", "preserve_volume"):
+        for name in ("preserve_topology", "merge_coincident", "preserve_volume",
+                     "parallel_rounds"):
             if not isinstance(getattr(self, name), bool):
                 raise InvalidOptionsError(f"{name} must be true or false")
 

@@ -12,6 +12,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from . import rounds
 from ._kernels.adjacency import compact, make_face_lists
 from ._kernels.appearance import (
     N_SETTINGS,
@@ -35,6 +36,7 @@ from ._kernels.contract import (
     PARAM_EXACT,
     PARAM_PRESERVE_TOPOLOGY,
     PARAM_RANK_TOLERANCE,
+    PARAM_STOP_COST,
     STATUS_EXHAUSTED,
     STATUS_NEED_PAIR_POOL_SPACE,
     STATUS_NEED_POOL_SPACE,
@@ -57,6 +59,8 @@ from .mesh import Mesh
 from .options import ERROR_MODE_CODES, WEIGHTING_AREA_EXPONENTS, WEIGHTING_CODES, BuildOptions
 from .prepare import MeshEdges, prepare_mesh_and_edges, unique_edges
 from .progressive import ProgressiveMesh
+from .record import grown, make_record, with_room_for
+from .rounds import contract_in_rounds, in_input_order, live_edge_list, spatial_order
 
 __all__ = [
     "ContractionRun",
@@ -136,6 +140,7 @@ def _kernel_params(options: BuildOptions) -> np.ndarray:
     params[PARAM_EXACT] = float(ERROR_MODE_CODES[options.error_mode])
     params[PARAM_PRESERVE_TOPOLOGY] = float(options.preserve_topology)
     params[PARAM_DISTANCE_WEIGHT] = options.distance_weight
+    params[PARAM_STOP_COST] = np.inf
     return params
 
 
@@ -215,33 +220,6 @@ def _make_scratch(cx: Complex, options: BuildOptions, wedges: Wedges | None) -> 
     )
 
 
-def _make_record(n: int, m: int, n_wedges: int, k: int) -> Record:
-    wedge_capacity = 2 * n_wedges + 64 if n_wedges else 0
-    return Record(
-        a=np.full(n, -1, np.int32),
-        b=np.full(n, -1, np.int32),
-        position_a=np.zeros((n, 3)),
-        position_b=np.zeros((n, 3)),
-        cost=np.zeros(n),
-        killed_end=np.zeros(n, np.int64),
-        killed=np.full(m, -1, np.int32),
-        relabel_end=np.zeros(n, np.int64),
-        relabel=np.full(max(8 * n, 64), -1, np.int32),
-        wedge_log_end=np.zeros(n if n_wedges else 0, np.int64),
-        wedge_log=np.full((wedge_capacity, 2), -1, np.int32),
-        wedge_log_values=np.zeros((wedge_capacity, k)),
-        wedge_relabel_end=np.zeros(n if n_wedges else 0, np.int64),
-        wedge_relabel=np.full((wedge_capacity, 3), -1, np.int32),
-        counts=np.zeros(5, np.int64),
-    )
-
-
-def _grown(array: np.ndarray, fill) -> np.ndarray:
-    bigger = np.full((2 * array.shape[0],) + array.shape[1:], fill, array.dtype)
-    bigger[: array.shape[0]] = array
-    return bigger
-
-
 def contract_greedily(
     vertices: np.ndarray,
     faces: np.ndarray,
@@ -260,21 +238,56 @@ def contract_greedily(
     ``mesh_edges``: the edges of ``faces`` if already found (`prepare_mesh_and_edges`).
     ``wedges``: appearance attributes (attributes.py), kept in Hoppe's quadric.
     """
+    if (options.parallel_rounds and wedges is None and options.pair_threshold == 0.0
+            and not options.preserve_volume and max_contractions is None
+            and vertices.shape[0] > rounds.PARALLEL_MIN_VERTICES):
+        # Parallel rounds (rounds.py), on the mesh in z-order.
+        vertex_order, face_order, ordered_faces = spatial_order(vertices, faces)
+        run = _contract(vertices[vertex_order], ordered_faces, options, progress, None,
+                        unique_edges(ordered_faces, vertices.shape[0]), None, in_rounds=True)
+        record, cx = in_input_order(run.record, run.complex, vertex_order, face_order)
+        return ContractionRun(record, cx, run.n_contractions)
+    return _contract(vertices, faces, options, progress, max_contractions, mesh_edges, wedges,
+                     in_rounds=False)
+
+
+def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
+              progress: ProgressCallback | None, max_contractions: int | None,
+              mesh_edges: MeshEdges | None, wedges: Wedges | None,
+              in_rounds: bool) -> ContractionRun:
+    """`contract_greedily`, in parallel rounds first if ``in_rounds``."""
     n, m = vertices.shape[0], faces.shape[0]
     if mesh_edges is None:
         mesh_edges = unique_edges(faces, n)
     cx, edges = _initial_complex(vertices, faces, options, mesh_edges, wedges)
     scratch = _make_scratch(cx, options, wedges)
     params = _kernel_params(options)
-    lists = make_face_lists(cx.faces, n, capacity=6 * m + 1024)
     pairs = make_pairs(_pairs_for(vertices, edges, options.pair_threshold), n, edges.shape[0])
     hood = make_neighbourhood(n)
+    record = make_record(n, m, *cx.wedge_values.shape)
+    budget = n if max_contractions is None else max(0, int(max_contractions))
+    chunk = min(CHUNK_CONTRACTIONS, max(MIN_CHUNK_CONTRACTIONS, n // 16))
+
+    def report(done: int) -> None:
+        if progress is not None:
+            progress(min(1.0, done / max(1, n - 4)))
+
+    done = 0
+    if in_rounds:
+        record, done = contract_in_rounds(
+            cx, hood, pairs, record, params, options.error_mode == "exact",
+            lambda: _make_scratch(cx, options, None), chunk, report)
+    lists = make_face_lists(cx.faces, n, capacity=6 * m + 1024, alive=cx.face_alive)
     # Candidates: the edges, then the pairs; their ids are the heap's ids.
     candidates = np.concatenate([edges, pairs.ends]) if pairs.ends.size else edges
     heap = make_heap(candidates.shape[0])
     exact = options.error_mode == "exact"
     if wedges is None and not options.preserve_volume:
-        fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, candidates, exact,
+        if done:
+            ids, candidates = live_edge_list(cx)
+        else:
+            ids = np.arange(candidates.shape[0], dtype=np.int64)
+        fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, candidates, ids, exact,
                   RANK_TOLERANCE, heap.entries, heap.position, heap.size)
     else:
         fill_costs(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, candidates, exact,
@@ -282,10 +295,6 @@ def contract_greedily(
                    lists.pool, _look(cx, scratch), heap.entries)
         heap.size[0] = candidates.shape[0]
         heapify(heap.entries, heap.position, heap.size)
-    record = _make_record(n, m, *cx.wedge_values.shape)
-    budget = n if max_contractions is None else max(0, int(max_contractions))
-    done = 0
-    chunk = min(CHUNK_CONTRACTIONS, max(MIN_CHUNK_CONTRACTIONS, n // 16))
     while done < budget:
         restart_generations(hood)
         status, steps = run_contractions(
@@ -294,24 +303,17 @@ def contract_greedily(
         done += steps
         if status == STATUS_EXHAUSTED:
             break
-        if status == STATUS_NEED_RELABEL_SPACE:
-            record = record._replace(relabel=_grown(record.relabel, -1))
-        elif status == STATUS_NEED_WEDGE_SPACE:
-            record = record._replace(
-                wedge_log=_grown(record.wedge_log, -1),
-                wedge_log_values=_grown(record.wedge_log_values, 0.0),
-                wedge_relabel=_grown(record.wedge_relabel, -1),
-            )
+        if status in (STATUS_NEED_RELABEL_SPACE, STATUS_NEED_WEDGE_SPACE):
+            record = with_room_for(record, status)
         elif status == STATUS_NEED_POOL_SPACE:
             compact(lists.start, lists.count, lists.pool, lists.used, cx.vertex_alive)
-            lists = lists._replace(pool=_grown(lists.pool, -1))
+            lists = lists._replace(pool=grown(lists.pool, -1))
         elif status == STATUS_NEED_PAIR_POOL_SPACE:
             compact(pairs.start, pairs.count, pairs.pool, pairs.used, cx.vertex_alive)
-            pairs = pairs._replace(pool=_grown(pairs.pool, -1))
+            pairs = pairs._replace(pool=grown(pairs.pool, -1))
         else:
             assert status == STATUS_STEPS_DONE, status
-        if progress is not None:
-            progress(min(1.0, done / max(1, n - 4)))
+        report(done)
     return ContractionRun(record, cx, done)
 
 

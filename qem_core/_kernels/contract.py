@@ -70,6 +70,7 @@ STATUS_NEED_RELABEL_SPACE = 2
 STATUS_NEED_POOL_SPACE = 3
 STATUS_NEED_PAIR_POOL_SPACE = 4
 STATUS_NEED_WEDGE_SPACE = 5
+STATUS_STOP_COST = 6  # the cheapest candidate costs more than PARAM_STOP_COST
 
 # Indices into the float parameter vector.
 PARAM_RANK_TOLERANCE = 0
@@ -77,7 +78,13 @@ PARAM_COS_STEP_TURN = 1  # cos of the largest allowed per-contraction turn of a 
 PARAM_EXACT = 2  # 1.0 for the exact (inclusion-exclusion) error mode
 PARAM_PRESERVE_TOPOLOGY = 3
 PARAM_DISTANCE_WEIGHT = 4  # weight of the one-step distance in the cost (distance.py)
-N_PARAMS = 5
+# Parallel rounds (rounds.py): the loop returns STATUS_STOP_COST before a candidate that
+# costs more than this (inf: never), and with PARAM_SHARED_COMPLEX != 0 another loop
+# works on the same complex at the same time, so the pool is never compacted (that
+# would move the other loop's lists): STATUS_NEED_POOL_SPACE instead.
+PARAM_STOP_COST = 5
+PARAM_SHARED_COMPLEX = 6
+N_PARAMS = 7
 
 
 class Complex(NamedTuple):
@@ -192,15 +199,17 @@ prefetch_next = numba.njit(cache=True, inline="always")(_prefetch_next)
 
 def _update_vertex_edges(vertices, vertex_quadrics, vertex_refused, edge_quadrics, faces,
                          face_alive, face_edge, start, count, pool, near, generation, retry,
-                         heap_entries, heap_position, heap_size, v, only_missing, exact,
-                         rank_tolerance, quadric, position, look):
+                         part, heap_entries, heap_position, heap_size, v, only_missing,
+                         exact, rank_tolerance, quadric, position, look):
     """Give every edge of v its current cost in the heap (inserting it if it was out).
 
     With ``only_missing``, edges already in the heap are left alone (their cost is
     current: it changes only when an end changes, and then this runs for that end).
     Without it (v was just contracted into), the neighbours that had a candidate refused
     are listed in ``retry`` (and their mark cleared): v's change may have lifted the
-    reason. Tags the neighbours of v (column NEAR_SCRATCH) with a new generation.
+    reason. Edges to a vertex of another part than v's (``part``, rounds.py) are left
+    out, and so are such neighbours from ``retry``: another loop may be changing them.
+    Tags the neighbours of v (column NEAR_SCRATCH) with a new generation.
     Returns (that generation, how many neighbours were listed). quadric (10,),
     position (3,): float64 work space.
     """
@@ -226,6 +235,8 @@ def _update_vertex_edges(vertices, vertex_quadrics, vertex_refused, edge_quadric
             if near[x, NEAR_SCRATCH] == g:
                 continue
             near[x, NEAR_SCRATCH] = g
+            if part[x] != part[v]:
+                continue
             edge = face_edge[f, corner if step == 1 else (corner + 2) % 3]
             if only_missing:
                 if heap_position[edge] >= 0:
@@ -347,7 +358,7 @@ rewrite_faces = borrowing_kernel(_rewrite_faces)
 
 def _update_after_contraction(vertices, vertex_quadrics, vertex_refused, edge_quadrics,
                               faces, face_alive, face_edge, start, count, pool, near,
-                              generation, retry, heap_entries, heap_position, heap_size,
+                              generation, retry, part, heap_entries, heap_position, heap_size,
                               pair_ends, pair_alive, first_pair, pair_start, pair_count,
                               pair_pool, a, b, killed, killed_from, killed_to, exact,
                               rank_tolerance, quadric, position, look):
@@ -362,7 +373,7 @@ def _update_after_contraction(vertices, vertex_quadrics, vertex_refused, edge_qu
     a = np.int64(a)
     g, n_retry = update_vertex_edges(vertices, vertex_quadrics, vertex_refused,
                                      edge_quadrics, faces, face_alive, face_edge, start,
-                                     count, pool, near, generation, retry, heap_entries,
+                                     count, pool, near, generation, retry, part, heap_entries,
                                      heap_position, heap_size, a, all_edges, exact,
                                      rank_tolerance, quadric, position, look)
     if has_pairs:
@@ -382,9 +393,9 @@ def _update_after_contraction(vertices, vertex_quadrics, vertex_refused, edge_qu
         v = np.int64(retry[i])
         g, _ = update_vertex_edges(vertices, vertex_quadrics, vertex_refused, edge_quadrics,
                                    faces, face_alive, face_edge, start, count, pool, near,
-                                   generation, retry, heap_entries, heap_position, heap_size,
-                                   v, only_missing, exact, rank_tolerance, quadric, position,
-                                   look)
+                                   generation, retry, part, heap_entries, heap_position,
+                                   heap_size, v, only_missing, exact, rank_tolerance, quadric,
+                                   position, look)
         if has_pairs:
             update_vertex_pairs(vertices, vertex_quadrics, edge_quadrics, near, generation,
                                 heap_entries, heap_position, heap_size, pair_ends, pair_alive,
@@ -420,6 +431,9 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, s
     first_pair = pairs.first[0]
     has_pairs = pair_ends.shape[0] > 0
     near, generation, retry = borrow(hood.near), borrow(hood.generation), borrow(hood.retry)
+    part = borrow(hood.part)
+    stop_key = cost_key(params[PARAM_STOP_COST])
+    shared_complex = params[PARAM_SHARED_COMPLEX] != 0.0
     heap_entries, heap_position = borrow(heap.entries), borrow(heap.position)
     heap_size = borrow(heap.size)
     record_a, record_b = borrow(record.a), borrow(record.b)
@@ -446,11 +460,15 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, s
         if heap_size[0] == 0:
             return STATUS_EXHAUSTED, steps
         key = heap_entries[0, 0]
+        if key > stop_key:
+            return STATUS_STOP_COST, steps
         a, b, edge = top(heap_entries)
         # The survivor is the vertex with more faces: fewer corners to relabel.
         if count[b] > count[a]:
             a, b = b, a
         if used[0] + count[a] + count[b] > pool.shape[0]:
+            if shared_complex:
+                return STATUS_NEED_POOL_SPACE, steps
             compact(start, count, pool, used, vertex_alive)
             if used[0] + count[a] + count[b] > pool.shape[0]:
                 return STATUS_NEED_POOL_SPACE, steps
@@ -563,11 +581,12 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, s
         prefetch_next(heap_entries, heap_size, start, count, pool, faces, face_edge, 2)
         update_after_contraction(vertices, vertex_quadrics, vertex_refused, edge_quadrics,
                                  faces, face_alive, face_edge, start, count, pool, near,
-                                 generation, retry, heap_entries, heap_position, heap_size,
-                                 pair_ends, pair_alive, first_pair, pair_start, pair_count,
-                                 pair_pool, a, b, killed, killed_from, n_killed, exact,
+                                 generation, retry, part, heap_entries, heap_position,
+                                 heap_size, pair_ends, pair_alive, first_pair, pair_start,
+                                 pair_count, pair_pool, a, b, killed, killed_from, n_killed, exact,
                                  rank_tolerance, quadric, position, look)
     return STATUS_STEPS_DONE, steps
 
 
-run_contractions = numba.njit(cache=True)(_run_contractions)
+# nogil: the loops of a parallel round run in threads of their own (rounds.py).
+run_contractions = numba.njit(cache=True, nogil=True)(_run_contractions)

@@ -47,17 +47,24 @@ NEAR_SCRATCH = 7  # tag free for callers (dedupe of neighbours)
 NEAR_COLUMNS = 8
 # Generations are int32 in ``near``; the driver restarts them well before they overflow.
 MAX_GENERATION = 1 << 30
+# ``Neighbourhood.part`` of a vertex no loop of a parallel round may contract (rounds.py).
+PART_FROZEN = 255
 
 
 class Neighbourhood(NamedTuple):
     near: np.ndarray  # (n, 8) int32, columns NEAR_*
     generation: np.ndarray  # (1,) int64, the last generation handed out
     retry: np.ndarray  # (n + 1,) int32: scratch list of vertices
+    # (n,) uint8: the part of a parallel round each vertex is in (rounds.py), PART_FROZEN
+    # for the band between parts; a loop only puts edges within its vertex's part in its
+    # heap. All 0 outside rounds.
+    part: np.ndarray
 
 
 def make_neighbourhood(n_vertices: int) -> Neighbourhood:
     return Neighbourhood(np.full((n_vertices, NEAR_COLUMNS), -1, np.int32),
-                         np.zeros(1, np.int64), np.full(n_vertices + 1, -1, np.int32))
+                         np.zeros(1, np.int64), np.full(n_vertices + 1, -1, np.int32),
+                         np.zeros(n_vertices, np.uint8))
 
 
 def restart_generations(hood: Neighbourhood) -> None:

@@ -53,12 +53,13 @@ def _fill_border_quadrics(vertices, border_edges, border_faces, face_normals, we
 fill_border_quadrics = numba.njit(cache=True)(_fill_border_quadrics)
 
 
-def _fill_heap(vertices, vertex_quadrics, edge_quadrics, edges, exact, rank_tolerance,
+def _fill_heap(vertices, vertex_quadrics, edge_quadrics, edges, ids, exact, rank_tolerance,
                heap_entries, heap_position, heap_size):
     """Put every candidate in the heap with its cost, then order it once (O(E)).
 
-    edges : (E + P, 2) int32, the edges and then the pairs (pairs.py); row i is
-    candidate i.
+    edges : (E, 2) int32 candidates, ids : (E,) int64 their ids (the build's first heap:
+    0..E-1, the edges and then the pairs of pairs.py; a round's heap: the edges of its
+    part, rounds.py).
 
     The costs are independent, so they are computed in parallel, each edge by the same
     arithmetic as in the loop: the result does not depend on the number of threads.
@@ -69,12 +70,12 @@ def _fill_heap(vertices, vertex_quadrics, edge_quadrics, edges, exact, rank_tole
         quadric = np.zeros(QUADRIC_SIZE)
         position = np.zeros(3)
         for e in range(chunk * n_edges // n_chunks, (chunk + 1) * n_edges // n_chunks):
-            a, b = edges[e, 0], edges[e, 1]
-            cost = edge_cost(vertices, vertex_quadrics, edge_quadrics, a, b, e, exact,
+            a, b, edge = edges[e, 0], edges[e, 1], ids[e]
+            cost = edge_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact,
                              rank_tolerance, quadric, position)
             heap_entries[e, 0] = heap_ops.cost_key(cost)
             heap_entries[e, 1] = heap_ops.pair(a, b)
-            heap_entries[e, 2] = e
+            heap_entries[e, 2] = edge
     heap_size[0] = n_edges
     heap_ops.heapify(heap_entries, heap_position, heap_size)
 

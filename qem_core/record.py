@@ -1,0 +1,129 @@
+"""The contraction record (`_kernels.contract.Record`): made, grown, and merged.
+
+A record lists every contraction (a, b) -> c in order, with its runs of killed and
+relabelled faces (and wedge logs) stored as one flat array each, cut by ``*_end``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from ._kernels.contract import (
+    STATUS_NEED_RELABEL_SPACE,
+    STATUS_NEED_WEDGE_SPACE,
+    Record,
+)
+
+__all__ = ["make_record", "grown", "with_room_for", "append_merged"]
+
+
+def make_record(n: int, m: int, n_wedges: int = 0, k: int = 0) -> Record:
+    """An empty record for at most n contractions of m faces (n_wedges wedges of k
+    values)."""
+    wedge_capacity = 2 * n_wedges + 64 if n_wedges else 0
+    return Record(
+        a=np.full(n, -1, np.int32),
+        b=np.full(n, -1, np.int32),
+        position_a=np.zeros((n, 3)),
+        position_b=np.zeros((n, 3)),
+        cost=np.zeros(n),
+        killed_end=np.zeros(n, np.int64),
+        killed=np.full(m, -1, np.int32),
+        relabel_end=np.zeros(n, np.int64),
+        relabel=np.full(max(8 * n, 64), -1, np.int32),
+        wedge_log_end=np.zeros(n if n_wedges else 0, np.int64),
+        wedge_log=np.full((wedge_capacity, 2), -1, np.int32),
+        wedge_log_values=np.zeros((wedge_capacity, k)),
+        wedge_relabel_end=np.zeros(n if n_wedges else 0, np.int64),
+        wedge_relabel=np.full((wedge_capacity, 3), -1, np.int32),
+        counts=np.zeros(5, np.int64),
+    )
+
+
+def grown(array: np.ndarray, fill, at_least: int = 0) -> np.ndarray:
+    """``array`` in one twice as long (or at_least rows), the new rows set to fill."""
+    bigger = np.full((max(2 * array.shape[0], at_least),) + array.shape[1:], fill, array.dtype)
+    bigger[: array.shape[0]] = array
+    return bigger
+
+
+def with_room_for(record: Record, status: int) -> Record:
+    """The record with its full array grown, for the loop's STATUS_NEED_RELABEL_SPACE
+    or STATUS_NEED_WEDGE_SPACE."""
+    if status == STATUS_NEED_RELABEL_SPACE:
+        return record._replace(relabel=grown(record.relabel, -1))
+    if status == STATUS_NEED_WEDGE_SPACE:
+        return record._replace(
+            wedge_log=grown(record.wedge_log, -1),
+            wedge_log_values=grown(record.wedge_log_values, 0.0),
+            wedge_relabel=grown(record.wedge_relabel, -1),
+        )
+    raise ValueError(f"status {status} asks for no record space")
+
+
+def _run_rows(ends: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """Rows of the runs cut by ``ends``, the runs taken in ``order``."""
+    starts = np.concatenate([[0], ends[:-1]]).astype(np.int64)
+    lengths = (ends - starts)[order]
+    if lengths.sum() == 0:
+        return np.zeros(0, np.int64)
+    first = np.repeat(starts[order] - np.concatenate([[0], np.cumsum(lengths)[:-1]]), lengths)
+    return first + np.arange(int(lengths.sum()))
+
+
+def append_merged(record: Record, parts: Sequence[Record]) -> Record:
+    """``record`` followed by the contractions of ``parts`` (records of geometry alone,
+    of disjoint parts of the complex), merged by cost.
+
+    Each part keeps its own order (a contraction may rely on the ones before it in its
+    part, never on another part's), and within that the cheapest goes first: the merge
+    is on the running maximum of each part's costs, ties to the lower part. Returns the
+    record, grown where it had to be."""
+    counts = [int(part.counts[0]) for part in parts]
+    if sum(counts) == 0:
+        return record
+    costs = np.concatenate([np.maximum.accumulate(p.cost[:c])
+                            for p, c in zip(parts, counts, strict=True) if c])
+    part_of = np.repeat(np.arange(len(parts)), counts)
+    local = np.concatenate([np.arange(c) for c in counts])
+    order = np.lexsort((local, part_of, costs))  # rows of the parts' concatenation
+
+    def merged(field: str) -> np.ndarray:
+        rows = [getattr(p, field)[:c] for p, c in zip(parts, counts, strict=True)]
+        return np.concatenate(rows)[order]
+
+    def merged_runs(field: str, end_field: str) -> tuple[np.ndarray, np.ndarray]:
+        """The runs' items in merged order, and their lengths."""
+        items, ends = [], []
+        base = 0
+        for p, c in zip(parts, counts, strict=True):
+            end = getattr(p, end_field)[:c]
+            items.append(getattr(p, field)[: int(end[-1]) if c else 0])
+            ends.append(end + base)
+            base += int(end[-1]) if c else 0
+        all_ends = np.concatenate(ends)
+        lengths = np.diff(np.concatenate([[0], all_ends]))[order]
+        return np.concatenate(items)[_run_rows(all_ends, order)], lengths
+
+    j0, killed0, relabel0 = (int(x) for x in record.counts[:3])
+    total = sum(counts)
+    killed, killed_lengths = merged_runs("killed", "killed_end")
+    relabel, relabel_lengths = merged_runs("relabel", "relabel_end")
+    if relabel0 + relabel.size > record.relabel.shape[0]:
+        record = record._replace(relabel=grown(record.relabel, -1, relabel0 + relabel.size))
+    span = slice(j0, j0 + total)
+    record.a[span] = merged("a")
+    record.b[span] = merged("b")
+    record.position_a[span] = merged("position_a")
+    record.position_b[span] = merged("position_b")
+    record.cost[span] = merged("cost")
+    record.killed[killed0:killed0 + killed.size] = killed
+    record.killed_end[span] = killed0 + np.cumsum(killed_lengths)
+    record.relabel[relabel0:relabel0 + relabel.size] = relabel
+    record.relabel_end[span] = relabel0 + np.cumsum(relabel_lengths)
+    record.counts[0] = j0 + total
+    record.counts[1] = killed0 + killed.size
+    record.counts[2] = relabel0 + relabel.size
+    return record

@@ -1,0 +1,142 @@
+"""Parallel rounds (qem_core/rounds.py): the merged record, and builds that run in rounds.
+
+Rounds start above `rounds.PARALLEL_MIN_VERTICES` live vertices (65536); these tests lower
+it so small meshes run several rounds (the shared igea and face_rangemap meshes run them
+at the real threshold in test_shared_meshes.py).
+"""
+
+import numpy as np
+import pytest
+
+import qem_core
+from qem_core import rounds
+from qem_core.progressive import ProgressiveMesh
+from qem_core.record import append_merged, make_record
+from tests import reference
+from tests.tiny_meshes import icosphere, perforated_icosphere
+
+ARRAY_FIELDS = ("base_vertices", "split_vertex", "split_positions", "face_corners",
+                "level_faces", "relabel_offsets", "relabel_faces", "split_cost")
+
+
+@pytest.fixture
+def small_rounds(monkeypatch):
+    """Rounds down to 200 live vertices; returns a list of (round contractions) calls."""
+    monkeypatch.setattr(rounds, "PARALLEL_MIN_VERTICES", 200)
+    calls = []
+    contract = rounds.contract_in_rounds
+
+    def counting(*args, **kwargs):
+        record, done = contract(*args, **kwargs)
+        calls.append(done)
+        return record, done
+
+    monkeypatch.setattr("qem_core.simplify.contract_in_rounds", counting)
+    return calls
+
+
+def same_levels(first: ProgressiveMesh, second: ProgressiveMesh) -> bool:
+    return all(np.array_equal(getattr(first, name), getattr(second, name))
+               for name in ARRAY_FIELDS)
+
+
+def part_record(costs, faces_killed, relabelled):
+    """A record of len(costs) contractions, (j, 100 + j) -> j at cost costs[j], with the
+    given runs of killed and relabelled faces; room for 16."""
+    record = make_record(16, 64)
+    for j, cost in enumerate(costs):
+        record.a[j], record.b[j] = j, 100 + j
+        record.position_a[j] = j
+        record.cost[j] = cost
+    killed = [f for run in faces_killed for f in run]
+    relabel = [f for run in relabelled for f in run]
+    record.killed[: len(killed)] = killed
+    record.killed_end[: len(costs)] = np.cumsum([len(run) for run in faces_killed])
+    record.relabel[: len(relabel)] = relabel
+    record.relabel_end[: len(costs)] = np.cumsum([len(run) for run in relabelled])
+    record.counts[:3] = len(costs), len(killed), len(relabel)
+    return record
+
+
+def runs(values, ends, count):
+    starts = np.concatenate([[0], ends[: count - 1]])
+    return [values[s:e].tolist() for s, e in zip(starts, ends[:count], strict=True)]
+
+
+def test_merge_keeps_each_parts_order_and_takes_the_cheaper_first():
+    first = part_record([1.0, 3.0, 2.0], [[1, 2], [3], [4, 5]], [[10], [], [11, 12]])
+    second = part_record([2.0, 2.5], [[6], [7, 8]], [[13, 14], [15]])
+    second.a[:2] = [50, 51]
+    merged = append_merged(part_record([0.5], [[0]], [[9]]), [first, second])
+    # Running maxima: first 1, 3, 3 and second 2, 2.5; ties go to the lower part.
+    assert merged.counts.tolist()[:3] == [6, 9, 7]
+    assert merged.a[:6].tolist() == [0, 0, 50, 51, 1, 2]
+    assert merged.cost[:6].tolist() == [0.5, 1.0, 2.0, 2.5, 3.0, 2.0]
+    assert runs(merged.killed, merged.killed_end, 6) == [[0], [1, 2], [6], [7, 8], [3], [4, 5]]
+    assert runs(merged.relabel, merged.relabel_end, 6) == [
+        [9], [10], [13, 14], [15], [], [11, 12]]
+
+
+def test_merge_grows_the_relabel_array():
+    record = part_record([], [], [])
+    record = record._replace(relabel=np.full(2, -1, np.int32))
+    part = part_record([1.0], [[1]], [[2, 3, 4, 5]])
+    merged = append_merged(record, [part, part_record([], [], [])])
+    assert runs(merged.relabel, merged.relabel_end, 1) == [[2, 3, 4, 5]]
+
+
+def test_a_closed_mesh_keeps_its_topology_through_the_rounds(small_rounds):
+    vertices, faces = icosphere(4, jitter=0.05, seed=3)
+    pm = qem_core.build(vertices, faces)
+    assert small_rounds and small_rounds[0] > 0.8 * (len(vertices) - 200)
+    assert pm.n_base == 4
+    chi = reference.fast_euler_characteristic(faces)
+    for n in np.unique(np.geomspace(4, pm.n_full, 12).astype(int)):
+        level_vertices, level_faces = pm.lod(int(n))
+        assert level_vertices.shape[0] == n
+        assert np.unique(level_faces).size == n
+        assert reference.fast_is_closed_manifold(level_faces), n
+        assert reference.fast_euler_characteristic(level_faces) == chi, n
+
+
+def test_an_open_mesh_keeps_its_borders_through_the_rounds(small_rounds):
+    vertices, faces = perforated_icosphere(4, holes=12, seed=5)
+    pm = qem_core.build(vertices, faces)
+    assert small_rounds and small_rounds[0] > 0
+    loops = reference.fast_boundary_loops(faces)
+    for n in np.unique(np.geomspace(pm.n_base, pm.n_full, 10).astype(int)):
+        _, level_faces = pm.lod(int(n))
+        assert reference.fast_boundary_loops(level_faces) == loops, n
+
+
+def test_the_levels_do_not_depend_on_the_number_of_cores(small_rounds, monkeypatch):
+    vertices, faces = icosphere(4, jitter=0.1, seed=1)
+    on_two = qem_core.build(vertices, faces, {"error_mode": "exact"})
+    monkeypatch.setattr(rounds.os, "cpu_count", lambda: 1)
+    on_one = qem_core.build(vertices, faces, {"error_mode": "exact"})
+    assert same_levels(on_two, on_one)
+    assert len(small_rounds) == 2
+
+
+def test_vertex_map_names_the_input_vertices_in_rounds(small_rounds):
+    """Rounds contract the mesh in z-order; the levels still name the input's vertices."""
+    vertices, faces = icosphere(4, jitter=0.05, seed=7)
+    pm = qem_core.build(vertices, faces)
+    assert small_rounds
+    full_vertices, full_faces = pm.lod(pm.n_full)
+    np.testing.assert_array_equal(full_vertices[pm.vertex_map], vertices)
+    assert reference.canonical_faces(pm.vertex_map[faces]).tolist() == \
+        reference.canonical_faces(full_faces).tolist()
+
+
+def test_parallel_rounds_off_is_the_strict_greedy_run(small_rounds, monkeypatch):
+    vertices, faces = icosphere(4, jitter=0.05, seed=2)
+    strict = qem_core.build(vertices, faces, {"parallel_rounds": False})
+    assert not small_rounds
+    monkeypatch.setattr(rounds, "PARALLEL_MIN_VERTICES", 1 << 40)
+    assert same_levels(strict, qem_core.build(vertices, faces))
+
+
+def test_parallel_rounds_must_be_a_bool():
+    with pytest.raises(qem_core.InvalidOptionsError, match="parallel_rounds"):
+        qem_core.BuildOptions(parallel_rounds=1)

@@ -242,9 +242,12 @@ def contract_greedily(
             and not options.preserve_volume and max_contractions is None
             and vertices.shape[0] > rounds.PARALLEL_MIN_VERTICES):
         # Parallel rounds (rounds.py), on the mesh in z-order.
-        vertex_order, face_order, ordered_faces = spatial_order(vertices, faces)
+        if mesh_edges is None:
+            mesh_edges = unique_edges(faces, vertices.shape[0])
+        vertex_order, face_order, ordered_faces, ordered_edges = spatial_order(
+            vertices, faces, mesh_edges)
         run = _contract(vertices[vertex_order], ordered_faces, options, progress, None,
-                        unique_edges(ordered_faces, vertices.shape[0]), None, in_rounds=True)
+                        ordered_edges, None, in_rounds=True)
         record, cx = in_input_order(run.record, run.complex, vertex_order, face_order)
         return ContractionRun(record, cx, run.n_contractions)
     return _contract(vertices, faces, options, progress, max_contractions, mesh_edges, wedges,

@@ -55,3 +55,73 @@ def _freeze_band(faces, face_alive, part, vertices_in_part, faces_in_part):
 
 
 freeze_band = numba.njit(cache=True)(_freeze_band)
+
+
+def _morton_codes(vertices, low, scale, bits, codes):
+    """codes (n,) uint64 out: the z-order code of each vertex on a 2^bits grid, the
+    grid cell of a coordinate x being floor((x - low) * scale), clamped to the grid."""
+    top = (1 << bits) - 1
+    for i in range(vertices.shape[0]):
+        code = np.uint64(0)
+        for axis in range(3):
+            cell = (vertices[i, axis] - low[axis]) * scale
+            q = 0 if not cell > 0.0 else min(int(cell), top)
+            for bit in range(bits):
+                if (q >> bit) & 1:
+                    code |= np.uint64(1) << np.uint64(3 * bit + 2 - axis)
+        codes[i] = code
+
+
+morton_codes = numba.njit(cache=True)(_morton_codes)
+
+
+def _faces_by_lowest_corner(faces, rank, face_order, renumbered):
+    """A stable counting sort of the faces by their lowest corner in the new numbering
+    ``rank``: face_order (m,) out, and renumbered (m, 3) int32 out, faces[face_order]
+    with each corner v written rank[v]."""
+    count = np.zeros(rank.shape[0] + 1, np.int64)
+    for f in range(faces.shape[0]):
+        low = min(rank[faces[f, 0]], rank[faces[f, 1]], rank[faces[f, 2]])
+        count[low + 1] += 1
+    for v in range(rank.shape[0]):
+        count[v + 1] += count[v]
+    for f in range(faces.shape[0]):
+        low = min(rank[faces[f, 0]], rank[faces[f, 1]], rank[faces[f, 2]])
+        i = count[low]
+        count[low] = i + 1
+        face_order[i] = f
+        for k in range(3):
+            renumbered[i, k] = rank[faces[f, k]]
+
+
+faces_by_lowest_corner = numba.njit(cache=True)(_faces_by_lowest_corner)
+
+
+def _renumber_edges(face_edge, face_order, edges, edge_face_count, rank, new_face_edge,
+                    new_edges, new_face_count, new_side):
+    """The edges of a mesh renumbered by `faces_by_lowest_corner`: numbered in order of
+    first appearance in the new face order (neighbouring edges get near ids), with
+    (low, high) ends in the new vertex numbering, their face counts, and the last side
+    3 f + k on each. The outputs are shaped like prepare.MeshEdges'."""
+    new_id = np.full(edges.shape[0], -1, np.int64)
+    n_edges = 0
+    for i in range(face_order.shape[0]):
+        f = face_order[i]
+        for k in range(3):
+            old = face_edge[f, k]
+            e = new_id[old]
+            if e < 0:
+                e = n_edges
+                new_id[old] = e
+                n_edges += 1
+            new_face_edge[i, k] = e
+            new_side[e] = 3 * i + k
+    for old in range(edges.shape[0]):
+        e = new_id[old]
+        a, b = rank[edges[old, 0]], rank[edges[old, 1]]
+        new_edges[e, 0] = min(a, b)
+        new_edges[e, 1] = max(a, b)
+        new_face_count[e] = edge_face_count[old]
+
+
+renumber_edges = numba.njit(cache=True)(_renumber_edges)

@@ -4,7 +4,7 @@
         [--qem-option name=value ...] [--timeout SECONDS] [--stages]
 
 Every run is a fresh child process (`bench.measure.measure_in_child`); the clock covers
-the build call (or the peer's simplify call) alone. qem-lod is measured three ways:
+the build call (or the peer's simplify call) alone. qem-lod is measured four ways:
 
 - **cold**: once, with NUMBA_CACHE_DIR pointing at an empty temporary folder, so the
   build compiles every kernel: compile + run.
@@ -13,11 +13,14 @@ the build call (or the peer's simplify call) alone. qem-lod is measured three wa
 - **hot**: --runs runs, each after an untimed build of a tiny mesh in the same process
   (`bench.qem_lod.warm_up_build`): the run alone, the figure to set against the peers,
   whose code is compiled ahead of time and loaded by an untimed warm-up call too.
+- **hot without rounds**: the same with `parallel_rounds=false`, one strictly greedy
+  sequence: what the parallel rounds (qem_core/rounds.py) gain, in the same run.
 
 Numba compile time is reported as cold - median(warm cache). The peers are
 meshoptimizer and PyMeshLab (default options), each simplifying the same mesh once to
 --fraction of its referenced vertices, --runs runs. Runs are interleaved (qem warm, qem
-hot, meshoptimizer, pymeshlab, then again) so slow drifts of the machine hit all alike.
+hot, qem hot without rounds, meshoptimizer, pymeshlab, then again) so slow drifts of the
+machine hit all alike.
 
 With --stages, --runs more hot builds (fresh children) time the stages of the build:
 each stage function of `qem_core.simplify` (STAGES) is wrapped, in the child, by a clock
@@ -65,7 +68,6 @@ STAGES = (
      "prepare_mesh_and_edges"),
     ("z-order of a mesh built in rounds (rounds.spatial_order)", "qem_core.simplify",
      "spatial_order"),
-    ("edges of the z-ordered mesh", "qem_core.simplify", "unique_edges"),
     ("quadrics of faces, borders and vertices", "qem_core.simplify", "_initial_complex"),
     ("vertex -> face lists", "qem_core.simplify", "make_face_lists"),
     ("parallel rounds: cuts, heaps, two loops in threads, merges", "qem_core.simplify",
@@ -206,8 +208,13 @@ def measure_build_speed(
     cold = _Series(f"{label} cold (compile + run)")
     warm = _Series(f"{label} warm cache (cache load + run)")
     hot = _Series(f"{label} hot (run alone)")
+    # The same build in one strictly greedy sequence, for the gain of parallel rounds.
+    serial_values = {**option_values, "parallel_rounds": False}
+    serial_hot = _Series(f"{qem_lod.variant_label(serial_values)} hot (run alone)")
+    if option_values.get("parallel_rounds") is False:
+        serial_hot.status = "skipped: the options already turn parallel rounds off"
     peers = {name: _Series(f"{name} to {fraction:g}") for name in PEER_NAMES}
-    qem_series = (cold, warm, hot)
+    qem_series = (cold, warm, hot, serial_hot)
     if qem_note is not None:
         for series in qem_series:
             series.status = f"skipped: {qem_note}"
@@ -230,6 +237,14 @@ def measure_build_speed(
                 before_args=(option_values,),
                 **qem_options,
             )
+            _measure_into(
+                serial_hot,
+                qem_lod.build_progressive_mesh,
+                (mesh.vertices, mesh.faces, serial_values),
+                before=qem_lod.warm_up_build,
+                before_args=(serial_values,),
+                **qem_options,
+            )
             for name, series in peers.items():
                 peer = PEERS[name]
                 _measure_into(
@@ -245,14 +260,15 @@ def measure_build_speed(
                 f"{mesh.name} run {run + 1}/{runs}: "
                 + ", ".join(
                     f"{s.name} {format_ms(s.times_s[-1] if s.ok else None)} ms"
-                    for s in (warm, hot, *peers.values())
+                    for s in (warm, hot, serial_hot, *peers.values())
                 )
             )
     compile_s = None
     if cold.ok and warm.ok:
         compile_s = cold.median_s - warm.median_s
     ratios = {}
-    for qem_series_name, series in (("warm_cache", warm), ("hot", hot)):
+    for qem_series_name, series in (("warm_cache", warm), ("hot", hot),
+                                    ("hot_without_rounds", serial_hot)):
         for name, peer_series in peers.items():
             if series.ok and peer_series.ok:
                 ratios[f"{qem_series_name}/{name}"] = series.median_s / peer_series.median_s
@@ -272,7 +288,7 @@ def measure_build_speed(
             "qem_options": option_values,
         },
         "qem_note": qem_note,
-        "series": [s.to_dict() for s in (cold, warm, hot, *peers.values())],
+        "series": [s.to_dict() for s in (cold, warm, hot, serial_hot, *peers.values())],
         "numba_compile_s": compile_s,
         "ratios": ratios,
     }
@@ -335,7 +351,8 @@ def write_build_speed_report(path: Path, entry: dict[str, Any]) -> None:
         "the whole forest (every contraction down to the base mesh) with options "
         f"`{settings['qem_options'] or 'defaults'}`: cold = empty NUMBA_CACHE_DIR (compile "
         "+ run), warm cache = the same cache dir afterwards (cache load + run), hot = after "
-        "an untimed build of a 22-vertex mesh in the same process (run alone). The peers "
+        "an untimed build of a 22-vertex mesh in the same process (run alone); "
+        "`parallel_rounds=False` is the same build as one strictly greedy sequence. The peers "
         f"simplify once to {settings['peer_fraction']:g} of the referenced vertices "
         f"({settings['peer_target_faces']} faces), default options, after an untimed call "
         "on the same tiny mesh. Peak RSS: the child's peak during the call (MiB, includes "

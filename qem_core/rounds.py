@@ -49,8 +49,8 @@ from ._kernels.pairs import Pairs
 from ._kernels.partition import (
     faces_by_lowest_corner,
     freeze_band,
-    live_edges,
     morton_codes,
+    part_edges,
     renumber_edges,
 )
 from ._kernels.setup import fill_heap
@@ -62,14 +62,17 @@ __all__ = [
     "ROUND_PARTS",
     "contract_in_rounds",
     "in_input_order",
-    "live_edge_list",
+    "edges_by_part",
     "spatial_order",
 ]
 
 ROUND_PARTS = 2
-# Rounds run while more vertices than this are live: below it the serial loop takes
-# about a tenth of a second, and a round's set-up would cost more than it saves.
+# Rounds run while more vertices than this are live (and only for meshes this big):
+# below it a round's set-up (cut, face lists, heaps) costs about what its second thread
+# saves; on dragon, rounds down to 16384 live vertices measured the same as to 65536.
 PARALLEL_MIN_VERTICES = 65536
+# A bound on the rounds of one build (each halves the live vertices or so; 4 on dragon).
+MAX_ROUNDS = 64
 # A round's stop cost: this quantile of the costs of its candidates at its start.
 STOP_QUANTILE = 0.5
 # Rounds end once one contracts fewer than this share of the live vertices.
@@ -161,14 +164,15 @@ def in_input_order(run_record: Record, cx: Complex, vertex_order: np.ndarray,
     return record, cx
 
 
-def live_edge_list(cx: Complex) -> tuple[np.ndarray, np.ndarray]:
-    """(ids (E,) int64, ends (E, 2) int32) of the edges of the live faces."""
-    n_sides = 3 * int(np.count_nonzero(cx.face_alive))
-    ids = np.zeros(n_sides, np.int64)
-    ends = np.zeros((n_sides, 2), np.int32)
+def edges_by_part(cx: Complex, part: np.ndarray,
+                  n_parts: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """For each part p < n_parts, (ids (E_p,) int64, ends (E_p, 2) int32) of the edges of
+    the live faces with both ends in p (``part`` as `Neighbourhood.part`)."""
     n_edge_ids = int(cx.face_edge.max()) + 1 if cx.face_edge.size else 0
-    count = live_edges(cx.faces, cx.face_alive, cx.face_edge, n_edge_ids, ids, ends)
-    return ids[:count], ends[:count]
+    starts, ids, ends = part_edges(cx.faces, cx.face_alive, cx.face_edge, part, n_edge_ids,
+                                   n_parts)
+    return [(ids[starts[p]:starts[p + 1]], ends[starts[p]:starts[p + 1]])
+            for p in range(n_parts)]
 
 
 class _PartLoop:
@@ -193,14 +197,30 @@ class _PartLoop:
         return steps
 
 
+def _rank_labels(values: np.ndarray, n_parts: int) -> np.ndarray:
+    """(n,) uint8: the rank of each value (ties by index, as a stable sort ranks them)
+    times n_parts // n, found without sorting: one selection per boundary."""
+    labels = np.zeros(values.size, np.uint8)
+    for p in range(1, n_parts):
+        k = -(-p * values.size // n_parts)  # the first rank r with r * n_parts // n == p
+        if k >= values.size:
+            break
+        boundary = np.partition(values, k)[k]
+        below = values < boundary
+        equal = values == boundary
+        # Of the values equal to the boundary, the first k - (those below) rank below k.
+        equal_below = equal & (np.cumsum(equal) <= k - np.count_nonzero(below))
+        labels += ~(below | equal_below)
+    return labels
+
+
 def _cut(cx: Complex, part: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
     """Label the live vertices by their rank along ``axis`` into ROUND_PARTS parts of
     equal size (ties by vertex number), then freeze the band. Returns the number of
     vertices left in each part and of faces with all corners in it (by part number)."""
     live = np.flatnonzero(cx.vertex_alive)
-    order = np.argsort(cx.vertices[live, axis], kind="stable")
     part[:] = PART_FROZEN  # dead vertices: in no part
-    part[live[order]] = (np.arange(live.size) * ROUND_PARTS // max(live.size, 1)).astype(np.uint8)
+    part[live] = _rank_labels(cx.vertices[live, axis], ROUND_PARTS)
     vertices_in_part = np.zeros(PART_FROZEN + 1, np.int64)
     faces_in_part = np.zeros(PART_FROZEN + 1, np.int64)
     freeze_band(cx.faces, cx.face_alive, part, vertices_in_part, faces_in_part)
@@ -220,7 +240,7 @@ def contract_in_rounds(cx: Complex, hood: Neighbourhood, pairs: Pairs, record: R
     bbox = cx.vertices[cx.vertex_alive.astype(bool)]
     axes = np.argsort(-(bbox.max(axis=0) - bbox.min(axis=0)), kind="stable") if n else []
     with ThreadPoolExecutor(workers) as executor:
-        for round_index in range(64):
+        for round_index in range(MAX_ROUNDS):
             n_live = int(np.count_nonzero(cx.vertex_alive))
             if n_live <= PARALLEL_MIN_VERTICES:
                 break
@@ -249,37 +269,35 @@ def _start_round(cx: Complex, hood: Neighbourhood, pairs: Pairs, params: np.ndar
     """Cut the complex and set up one loop per part; None if no part has a candidate."""
     n = cx.vertices.shape[0]
     vertices_in_part, faces_in_part = _cut(cx, hood.part, axis)
-    lists = make_face_lists(cx.faces, n, capacity=3 * int(np.count_nonzero(cx.face_alive)),
-                            alive=cx.face_alive)
-    ids, ends = live_edge_list(cx)
-    edge_part = hood.part[ends[:, 0]]
-    edge_part = np.where(edge_part == hood.part[ends[:, 1]], edge_part, PART_FROZEN)
-    n_edge_ids = cx.face_edge.max() + 1
-    position = np.full(max(int(n_edge_ids), 1), -1, np.int32)  # shared: ids are disjoint
+    # One pool: the runs of the live faces, then a region per part for the runs its
+    # contractions write. Each loop is handed the pool up to the end of its region and
+    # appends from the region's start; of the shared runs below, each changes only its
+    # own vertices'.
+    room = [POOL_ROOM_PER_VERTEX * int(vertices_in_part[p]) + 1024 for p in range(ROUND_PARTS)]
+    used = 3 * int(np.count_nonzero(cx.face_alive))
+    lists = make_face_lists(cx.faces, n, capacity=used + sum(room), alive=cx.face_alive)
+    position = np.full(cx.face_edge.max() + 1, -1, np.int32)  # shared: ids are disjoint
     heaps = []
-    for p in range(ROUND_PARTS):
-        mine = edge_part == p
-        heap = Heap(np.zeros((max(int(mine.sum()), 1), 3), np.int64), position,
-                    np.zeros(1, np.int64))
-        fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics,
-                  np.ascontiguousarray(ends[mine]), np.ascontiguousarray(ids[mine]), exact,
+    for ids, ends in edges_by_part(cx, hood.part, ROUND_PARTS):
+        heap = Heap(np.zeros((max(ids.size, 1), 3), np.int64), position, np.zeros(1, np.int64))
+        fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, ends, ids, exact,
                   params[PARAM_RANK_TOLERANCE], heap.entries, heap.position, heap.size)
         heaps.append(heap)
     keys = np.concatenate([heap.entries[: heap.size[0], 0] for heap in heaps])
     if keys.size == 0:
         return None
-    stop_key = np.partition(keys, int(STOP_QUANTILE * (keys.size - 1)))[
-        int(STOP_QUANTILE * (keys.size - 1))]
+    k = int(STOP_QUANTILE * (keys.size - 1))
+    stop_key = np.partition(keys, k)[k]
     round_params = params.copy()
     round_params[PARAM_STOP_COST] = float(np.array(stop_key, np.int64).view(np.float64))
     round_params[PARAM_SHARED_COMPLEX] = 1.0
-    used = int(lists.used[0])
     loops = []
+    region_end = used
     for p, heap in enumerate(heaps):
         n_part = int(vertices_in_part[p])
-        pool = np.empty(used + POOL_ROOM_PER_VERTEX * n_part + 1024, np.int32)
-        pool[:used] = lists.pool[:used]  # the rest is written before it is read
-        part_lists = FaceLists(lists.start, lists.count, pool, lists.used.copy())
+        region_start, region_end = region_end, region_end + room[p]
+        part_lists = FaceLists(lists.start, lists.count, lists.pool[:region_end],
+                               np.array([region_start], np.int64))
         part_hood = Neighbourhood(hood.near, hood.generation.copy(),
                                   np.empty(n + 1, np.int32), hood.part)  # retry: scratch
         # A contraction kills faces of its part only, at most all of them.

@@ -60,7 +60,7 @@ from .options import ERROR_MODE_CODES, WEIGHTING_AREA_EXPONENTS, WEIGHTING_CODES
 from .prepare import MeshEdges, prepare_mesh_and_edges, unique_edges
 from .progressive import ProgressiveMesh
 from .record import grown, make_record, with_room_for
-from .rounds import contract_in_rounds, in_input_order, live_edge_list, spatial_order
+from .rounds import contract_in_rounds, edges_by_part, in_input_order, spatial_order
 
 __all__ = [
     "ContractionRun",
@@ -287,7 +287,7 @@ def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
     exact = options.error_mode == "exact"
     if wedges is None and not options.preserve_volume:
         if done:
-            ids, candidates = live_edge_list(cx)
+            [(ids, candidates)] = edges_by_part(cx, hood.part, 1)  # all in part 0
         else:
             ids = np.arange(candidates.shape[0], dtype=np.int64)
         fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, candidates, ids, exact,

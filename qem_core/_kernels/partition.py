@@ -6,29 +6,47 @@ import numpy as np
 from .link import PART_FROZEN
 
 
-def _live_edges(faces, face_alive, face_edge, n_edge_ids, ids, ends):
-    """The edges of the live faces, each once, in order of first appearance.
+def _part_edges(faces, face_alive, face_edge, part, n_edge_ids, n_parts):
+    """The edges of the live faces whose two ends are in one part p < n_parts, grouped
+    by part, each once, in order of first appearance.
 
-    ids : (>= 3 live faces,) int64, ends : (same, 2) int32, out: edge id and its two ends
-    (the side's direction in the face that lists it first). Returns how many."""
+    Returns (starts (n_parts + 1,) int64, ids (E,) int64, ends (E, 2) int32): the edges
+    of part p are rows starts[p]..starts[p + 1], each its id and its ends (the side's
+    direction in the face that lists it first)."""
     seen = np.zeros(n_edge_ids, np.uint8)
-    n = 0
+    starts = np.zeros(n_parts + 1, np.int64)
     for f in range(faces.shape[0]):
         if not face_alive[f]:
             continue
         for k in range(3):
             edge = face_edge[f, k]
-            if seen[edge]:
+            p = part[faces[f, k]]
+            if seen[edge] or p >= n_parts or part[faces[f, (k + 1) % 3]] != p:
                 continue
             seen[edge] = 1
-            ids[n] = edge
-            ends[n, 0] = faces[f, k]
-            ends[n, 1] = faces[f, (k + 1) % 3]
-            n += 1
-    return n
+            starts[p + 1] += 1
+    for p in range(n_parts):
+        starts[p + 1] += starts[p]
+    fill = starts[:n_parts].copy()
+    ids = np.zeros(starts[n_parts], np.int64)
+    ends = np.zeros((starts[n_parts], 2), np.int32)
+    for f in range(faces.shape[0]):
+        if not face_alive[f]:
+            continue
+        for k in range(3):
+            edge = face_edge[f, k]
+            if seen[edge] != 1:
+                continue
+            seen[edge] = 2
+            i = fill[part[faces[f, k]]]
+            fill[part[faces[f, k]]] = i + 1
+            ids[i] = edge
+            ends[i, 0] = faces[f, k]
+            ends[i, 1] = faces[f, (k + 1) % 3]
+    return starts, ids, ends
 
 
-live_edges = numba.njit(cache=True)(_live_edges)
+part_edges = numba.njit(cache=True)(_part_edges)
 
 
 def _freeze_band(faces, face_alive, part, vertices_in_part, faces_in_part):

@@ -7,6 +7,8 @@ at the real threshold in test_shared_meshes.py).
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 import qem_core
 from qem_core import rounds
@@ -83,6 +85,15 @@ def test_merge_grows_the_relabel_array():
     part = part_record([1.0], [[1]], [[2, 3, 4, 5]])
     merged = append_merged(record, [part, part_record([], [], [])])
     assert runs(merged.relabel, merged.relabel_end, 1) == [[2, 3, 4, 5]]
+
+
+@given(st.lists(st.integers(0, 4), min_size=1, max_size=60), st.integers(2, 8))
+def test_rank_labels_are_the_ranks_of_a_stable_sort(values, n_parts):
+    values = np.array(values, float)
+    ranks = np.empty(values.size, np.int64)
+    ranks[np.argsort(values, kind="stable")] = np.arange(values.size)
+    expected = ranks * n_parts // values.size
+    np.testing.assert_array_equal(rounds._rank_labels(values, n_parts), expected)
 
 
 def test_a_closed_mesh_keeps_its_topology_through_the_rounds(small_rounds):

@@ -124,44 +124,30 @@ def spatial_order(vertices: np.ndarray, faces: np.ndarray, mesh_edges: MeshEdges
 def in_input_order(run_record: Record, cx: Complex, vertex_order: np.ndarray,
                    face_order: np.ndarray) -> tuple[Record, Complex]:
     """A record and complex of the mesh ``vertices[vertex_order]``, faces renumbered and
-    taken in ``face_order``, told in the input's vertex and face numbers. (Edge ids and
-    edge quadrics stay as they are: nothing after the loop reads them by vertex.)"""
+    taken in ``face_order``, told in the input's vertex and face numbers. Their arrays
+    are rewritten in place, one at a time, so the build's peak memory grows by one array,
+    not by a second complex. (Edge ids and edge quadrics stay as they are: nothing after
+    the loop reads them by vertex.)"""
 
-    def ids(order: np.ndarray, values: np.ndarray) -> np.ndarray:
-        return np.where(values >= 0, order[np.maximum(values, 0)], values).astype(values.dtype)
+    def renumber(order: np.ndarray, values: np.ndarray) -> None:
+        values[:] = np.where(values >= 0, order[np.maximum(values, 0)], values)
 
-    def rows(order: np.ndarray, values: np.ndarray) -> np.ndarray:
-        if values.shape[0] != order.shape[0]:
-            return values  # an empty array of an option not in use
-        out = np.empty_like(values)
-        out[order] = values
-        return out
-
-    def renumbered(order: np.ndarray, values: np.ndarray, count: int) -> np.ndarray:
-        out = values.copy()  # past ``count``: not written yet
-        out[:count] = ids(order, values[:count])
-        return out
+    def move_rows(order: np.ndarray, values: np.ndarray) -> None:
+        if values.shape[0] == order.shape[0]:  # else an empty array of an option not in use
+            values[order] = values.copy()
 
     n_contractions, n_killed, n_relabel = (int(c) for c in run_record.counts[:3])
-    record = run_record._replace(
-        a=renumbered(vertex_order, run_record.a, n_contractions),
-        b=renumbered(vertex_order, run_record.b, n_contractions),
-        killed=renumbered(face_order, run_record.killed, n_killed),
-        relabel=renumbered(face_order, run_record.relabel, n_relabel),
-    )
-    cx = cx._replace(
-        vertices=rows(vertex_order, cx.vertices),
-        vertex_quadrics=rows(vertex_order, cx.vertex_quadrics),
-        vertex_alive=rows(vertex_order, cx.vertex_alive),
-        vertex_refused=rows(vertex_order, cx.vertex_refused),
-        faces=rows(face_order, ids(vertex_order, cx.faces)),
-        face_alive=rows(face_order, cx.face_alive),
-        face_normals=rows(face_order, cx.face_normals),
-        face_quadrics=rows(face_order, cx.face_quadrics),
-        face_edge=rows(face_order, cx.face_edge),
-        face_wedges=rows(face_order, cx.face_wedges),
-    )
-    return record, cx
+    renumber(vertex_order, run_record.a[:n_contractions])
+    renumber(vertex_order, run_record.b[:n_contractions])
+    renumber(face_order, run_record.killed[:n_killed])
+    renumber(face_order, run_record.relabel[:n_relabel])
+    renumber(vertex_order, cx.faces)
+    for values in (cx.vertices, cx.vertex_quadrics, cx.vertex_alive, cx.vertex_refused):
+        move_rows(vertex_order, values)
+    for values in (cx.faces, cx.face_alive, cx.face_normals, cx.face_quadrics, cx.face_edge,
+                   cx.face_wedges):
+        move_rows(face_order, values)
+    return run_record, cx
 
 
 def edges_by_part(cx: Complex, part: np.ndarray,

@@ -24,7 +24,9 @@ the link condition or the flip guard. Those stay out until the neighbourhood of 
 their ends changes: a refused edge marks both ends, and when a neighbour of a marked
 vertex is contracted into, the vertex's missing edges go back in with fresh costs. With
 pair contraction on, the pairs (pairs.py) are candidates too, numbered after the edges;
-they skip the link condition. No contraction may leave a vertex without a face.
+they skip the link condition. No contraction may leave a vertex without a face. In a
+parallel round (rounds.py) each loop holds only the edges within its part of the
+complex and stops at the round's cost (PARAM_STOP_COST).
 
 The loop runs in chunks of ``max_steps`` contractions so Python can report progress, and
 stops early with a status code when an array is full (Python grows it and resumes).

@@ -151,3 +151,13 @@ def test_parallel_rounds_off_is_the_strict_greedy_run(small_rounds, monkeypatch)
 def test_parallel_rounds_must_be_a_bool():
     with pytest.raises(qem_core.InvalidOptionsError, match="parallel_rounds"):
         qem_core.BuildOptions(parallel_rounds=1)
+
+
+def test_progress_rises_through_the_rounds(small_rounds):
+    vertices, faces = icosphere(4, jitter=0.05, seed=4)
+    seen = []
+    qem_core.build(vertices, faces, progress=seen.append)
+    assert small_rounds
+    assert len(seen) > 3
+    assert seen == sorted(seen)
+    assert seen[0] == 0.0 and seen[-1] == 1.0

@@ -16,7 +16,9 @@ The parts' records are then merged by cost (`record.append_merged`), so the sequ
 the greedy one except for the band's candidates below the stop cost, which wait for the
 next round. That round cuts along another axis, so the band is inside a part again.
 Rounds go on while more than ``PARALLEL_MIN_VERTICES`` vertices are live; the serial loop
-does the rest.
+does the rest. The build runs on the mesh renumbered in z-order (`spatial_order`), so each
+part lies in long runs of every array, and tells its record in the input's numbers
+afterwards (`in_input_order`).
 
 Deterministic: the cut, the loops and the merge depend on the mesh alone, not on the
 number of threads or their timing. With one core the parts run one after the other and

@@ -94,7 +94,7 @@ class BuildOptions:
         a common cost; the two sequences are merged by cost, and the next round cuts
         along another axis. The order is the greedy one except that the band's cheap
         contractions wait a round, and the result does not depend on the number of
-        cores or threads. About 1.3x faster on two cores (README). False: one strictly
+        cores or threads. 1.1-1.2x faster on two cores (README). False: one strictly
         greedy sequence, as for smaller meshes, meshes with appearance attributes, pairs
         or volume preservation.
     """

@@ -15,6 +15,7 @@ from ._kernels.contract import (
     STATUS_NEED_WEDGE_SPACE,
     Record,
 )
+from ._kernels.runs import gather_runs
 
 __all__ = ["make_record", "grown", "with_room_for", "append_merged"]
 
@@ -63,16 +64,6 @@ def with_room_for(record: Record, status: int) -> Record:
     raise ValueError(f"status {status} asks for no record space")
 
 
-def _run_rows(ends: np.ndarray, order: np.ndarray) -> np.ndarray:
-    """Rows of the runs cut by ``ends``, the runs taken in ``order``."""
-    starts = np.concatenate([[0], ends[:-1]]).astype(np.int64)
-    lengths = (ends - starts)[order]
-    if lengths.sum() == 0:
-        return np.zeros(0, np.int64)
-    first = np.repeat(starts[order] - np.concatenate([[0], np.cumsum(lengths)[:-1]]), lengths)
-    return first + np.arange(int(lengths.sum()))
-
-
 def append_merged(record: Record, parts: Sequence[Record]) -> Record:
     """``record`` followed by the contractions of ``parts`` (records of geometry alone,
     of disjoint parts of the complex), merged by cost.
@@ -100,12 +91,15 @@ def append_merged(record: Record, parts: Sequence[Record]) -> Record:
         base = 0
         for p, c in zip(parts, counts, strict=True):
             end = getattr(p, end_field)[:c]
-            items.append(getattr(p, field)[: int(end[-1]) if c else 0])
+            length = int(end[-1]) if c else 0
+            items.append(getattr(p, field)[:length])
             ends.append(end + base)
-            base += int(end[-1]) if c else 0
+            base += length
         all_ends = np.concatenate(ends)
-        lengths = np.diff(np.concatenate([[0], all_ends]))[order]
-        return np.concatenate(items)[_run_rows(all_ends, order)], lengths
+        lengths = np.diff(all_ends, prepend=0)[order]
+        out = np.empty(base, np.int32)
+        gather_runs(np.concatenate(items), all_ends, order, out)
+        return out, lengths
 
     j0, killed0, relabel0 = (int(x) for x in record.counts[:3])
     total = sum(counts)

@@ -35,6 +35,7 @@ import numpy as np
 
 from ._kernels.adjacency import FaceLists, make_face_lists
 from ._kernels.contract import (
+    PARAM_EXACT,
     PARAM_RANK_TOLERANCE,
     PARAM_SHARED_COMPLEX,
     PARAM_STOP_COST,
@@ -45,7 +46,7 @@ from ._kernels.contract import (
     Scratch,
     run_contractions,
 )
-from ._kernels.heap import Heap
+from ._kernels.heap import Heap, key_cost
 from ._kernels.link import PART_FROZEN, Neighbourhood, restart_generations
 from ._kernels.pairs import Pairs
 from ._kernels.partition import (
@@ -216,24 +217,24 @@ def _cut(cx: Complex, part: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarr
 
 
 def contract_in_rounds(cx: Complex, hood: Neighbourhood, pairs: Pairs, record: Record,
-                       params: np.ndarray, exact: bool, make_scratch: Callable[[], Scratch],
-                       chunk: int, report: Callable[[int], None]) -> tuple[Record, int]:
+                       params: np.ndarray, make_scratch: Callable[[], Scratch], chunk: int,
+                       report: Callable[[int], None]) -> tuple[Record, int]:
     """Contract in parallel rounds (module docstring) while more than
     PARALLEL_MIN_VERTICES vertices are live. Appends to ``record``; returns it (grown
     if it had to be) and the number of contractions. ``report(contractions so far)``
     is called from this thread between chunks. Leaves ``hood.part`` all 0."""
-    n = cx.vertices.shape[0]
     done = 0
     workers = min(ROUND_PARTS, os.cpu_count() or 1)
-    bbox = cx.vertices[cx.vertex_alive.astype(bool)]
-    axes = np.argsort(-(bbox.max(axis=0) - bbox.min(axis=0)), kind="stable") if n else []
+    # Round r cuts across the r-th longest side of the bounding box (cyclically).
+    sides = np.ptp(cx.vertices[cx.vertex_alive.astype(bool)], axis=0)
+    axes = np.argsort(-sides, kind="stable")
     with ThreadPoolExecutor(workers) as executor:
         for round_index in range(MAX_ROUNDS):
             n_live = int(np.count_nonzero(cx.vertex_alive))
             if n_live <= PARALLEL_MIN_VERTICES:
                 break
             restart_generations(hood)
-            loops = _start_round(cx, hood, pairs, params, exact, make_scratch,
+            loops = _start_round(cx, hood, pairs, params, make_scratch,
                                  int(axes[round_index % 3]))
             if loops is None:
                 break
@@ -252,8 +253,7 @@ def contract_in_rounds(cx: Complex, hood: Neighbourhood, pairs: Pairs, record: R
 
 
 def _start_round(cx: Complex, hood: Neighbourhood, pairs: Pairs, params: np.ndarray,
-                 exact: bool, make_scratch: Callable[[], Scratch],
-                 axis: int) -> list[_PartLoop] | None:
+                 make_scratch: Callable[[], Scratch], axis: int) -> list[_PartLoop] | None:
     """Cut the complex and set up one loop per part; None if no part has a candidate."""
     n = cx.vertices.shape[0]
     vertices_in_part, faces_in_part = _cut(cx, hood.part, axis)
@@ -268,8 +268,9 @@ def _start_round(cx: Complex, hood: Neighbourhood, pairs: Pairs, params: np.ndar
     heaps = []
     for ids, ends in edges_by_part(cx, hood.part, ROUND_PARTS):
         heap = Heap(np.zeros((max(ids.size, 1), 3), np.int64), position, np.zeros(1, np.int64))
-        fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, ends, ids, exact,
-                  params[PARAM_RANK_TOLERANCE], heap.entries, heap.position, heap.size)
+        fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, ends, ids,
+                  params[PARAM_EXACT] != 0.0, params[PARAM_RANK_TOLERANCE], heap.entries,
+                  heap.position, heap.size)
         heaps.append(heap)
     keys = np.concatenate([heap.entries[: heap.size[0], 0] for heap in heaps])
     if keys.size == 0:
@@ -277,7 +278,7 @@ def _start_round(cx: Complex, hood: Neighbourhood, pairs: Pairs, params: np.ndar
     k = int(STOP_QUANTILE * (keys.size - 1))
     stop_key = np.partition(keys, k)[k]
     round_params = params.copy()
-    round_params[PARAM_STOP_COST] = float(np.array(stop_key, np.int64).view(np.float64))
+    round_params[PARAM_STOP_COST] = key_cost(stop_key)
     round_params[PARAM_SHARED_COMPLEX] = 1.0
     loops = []
     region_end = used

@@ -52,7 +52,7 @@ from ._kernels.heap import heapify, make_heap
 from ._kernels.link import make_neighbourhood, restart_generations
 from ._kernels.pairs import candidate_pairs, make_pairs
 from ._kernels.quadrics import QUADRIC_SIZE, fill_face_quadrics
-from ._kernels.runs import reverse_runs
+from ._kernels.runs import gather_runs
 from ._kernels.setup import fill_border_quadrics, fill_heap, sum_quadrics
 from .attributes import Wedges, check_options_for_wedges, make_wedges
 from .mesh import Mesh
@@ -277,9 +277,9 @@ def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
 
     done = 0
     if in_rounds:
-        record, done = contract_in_rounds(
-            cx, hood, pairs, record, params, options.error_mode == "exact",
-            lambda: _make_scratch(cx, options, None), chunk, report)
+        record, done = contract_in_rounds(cx, hood, pairs, record, params,
+                                          lambda: _make_scratch(cx, options, None), chunk,
+                                          report)
     lists = make_face_lists(cx.faces, n, capacity=6 * m + 1024, alive=cx.face_alive)
     # Candidates: the edges, then the pairs; their ids are the heap's ids.
     candidates = np.concatenate([edges, pairs.ends]) if pairs.ends.size else edges
@@ -395,7 +395,7 @@ def _reversed_run_rows(ends: np.ndarray, j_count: int) -> tuple[np.ndarray, np.n
     split each belongs to."""
     total = int(ends[j_count - 1]) if j_count else 0
     rows = np.zeros(total, np.int64)
-    reverse_runs(np.arange(total, dtype=np.int64), ends, j_count, rows)
+    gather_runs(np.arange(total, dtype=np.int64), ends, np.arange(j_count - 1, -1, -1), rows)
     lengths = np.diff(ends[:j_count], prepend=0)[::-1]
     return rows, np.repeat(np.arange(j_count), lengths)
 

@@ -37,6 +37,7 @@ from ._kernels.contract import (
     PARAM_PRESERVE_TOPOLOGY,
     PARAM_RANK_TOLERANCE,
     PARAM_STOP_COST,
+    PARAM_VOLUME_WEIGHT,
     STATUS_EXHAUSTED,
     STATUS_NEED_PAIR_POOL_SPACE,
     STATUS_NEED_POOL_SPACE,
@@ -140,6 +141,7 @@ def _kernel_params(options: BuildOptions) -> np.ndarray:
     params[PARAM_EXACT] = float(ERROR_MODE_CODES[options.error_mode])
     params[PARAM_PRESERVE_TOPOLOGY] = float(options.preserve_topology)
     params[PARAM_DISTANCE_WEIGHT] = options.distance_weight
+    params[PARAM_VOLUME_WEIGHT] = 0.0 if options.preserve_volume else options.volume_weight
     params[PARAM_STOP_COST] = np.inf
     return params
 

@@ -23,8 +23,9 @@ with the wedges of b they meet across the faces that die (union-find over those 
 each merged group has its own s, so the cost of the contraction is the position quadric
 plus one Schur complement per group, minimised as usual (placement.py).
 
-**Volume** (optional): the contraction keeps the volume enclosed by the faces around a
-and b, a linear constraint g.p = h on the new position, met with a Lagrange multiplier.
+**Volume** (optional, volume.py): the contraction keeps the volume enclosed by the faces
+around a and b, a linear constraint g.p = h on the new position, met with a Lagrange
+multiplier.
 
 Everything is passed as ``look``, a tuple of borrowed arrays (see memory.py: a tuple of
 them costs no reference counting)::
@@ -45,8 +46,9 @@ import numpy as np
 from .adjacency import corner_of, has_corner
 from .heap import cost_key, pair
 from .memory import borrowing_kernel
-from .placement import contraction_quadric, edge_cost, minimise_near, place, solve3
-from .quadrics import QUADRIC_SIZE, area_weight, evaluate
+from .placement import contraction_quadric, edge_cost, place
+from .quadrics import QUADRIC_SIZE, area_weight
+from .volume import place_keeping_volume
 
 SETTING_VOLUME = 0
 SETTING_UV_OFFSET = 1
@@ -224,70 +226,6 @@ def _gather_groups(faces, face_alive, start, count, pool, a, b, look):
 
 
 gather_groups = borrowing_kernel(_gather_groups)
-
-
-def _volume_constraint(vertices, faces, face_alive, start, count, pool, a, b, ox, oy, oz):
-    """(gx, gy, gz, h): the volume under the faces around a and b stays the same when
-    the new vertex p meets g.(p - o) = h (o a nearby origin, for precision). Faces with
-    both a and b die: their volume after is zero."""
-    gx = gy = gz = 0.0
-    h = 0.0
-    for side in range(2):
-        v, other = (a, b) if side == 0 else (b, a)
-        s = start[v]
-        for i in range(count[v]):
-            f = pool[s + i]
-            if not face_alive[f]:
-                continue
-            shared = has_corner(faces, f, other)
-            if shared and v == b:
-                continue  # counted from a
-            k = corner_of(faces, f, v)
-            p0, p1, p2 = faces[f, k], faces[f, (k + 1) % 3], faces[f, (k + 2) % 3]
-            ux, uy, uz = vertices[p1, 0] - ox, vertices[p1, 1] - oy, vertices[p1, 2] - oz
-            wx, wy, wz = vertices[p2, 0] - ox, vertices[p2, 1] - oy, vertices[p2, 2] - oz
-            cx, cy, cz = uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx
-            h += ((vertices[p0, 0] - ox) * cx + (vertices[p0, 1] - oy) * cy
-                  + (vertices[p0, 2] - oz) * cz) / 6.0
-            if not shared:
-                gx += cx / 6.0
-                gy += cy / 6.0
-                gz += cz / 6.0
-    return gx, gy, gz, h
-
-
-volume_constraint = borrowing_kernel(_volume_constraint)
-
-
-def _place_keeping_volume(quadric, vertices, faces, face_alive, start, count, pool, a, b,
-                          rank_tolerance, out):
-    """The minimiser of ``quadric`` on the plane g.p = h that keeps the volume: from the
-    unconstrained minimiser p0, step A^-1 g (h - g.p0) / (g^T A^-1 g) (a Lagrange
-    multiplier), with A lifted by a small multiple of I so flat directions take the
-    step. Returns the cost."""
-    mx = 0.5 * (vertices[a, 0] + vertices[b, 0])
-    my = 0.5 * (vertices[a, 1] + vertices[b, 1])
-    mz = 0.5 * (vertices[a, 2] + vertices[b, 2])
-    minimise_near(quadric, mx, my, mz, rank_tolerance, out)
-    gx, gy, gz, h = volume_constraint(vertices, faces, face_alive, start, count, pool, a, b,
-                                      mx, my, mz)
-    gg = gx * gx + gy * gy + gz * gz
-    if gg > 0.0:
-        miss = h - (gx * (out[0] - mx) + gy * (out[1] - my) + gz * (out[2] - mz))
-        lift = 1e-9 * (quadric[0] + quadric[3] + quadric[5]) + 1e-300
-        dx, dy, dz = solve3(quadric[0] + lift, quadric[1], quadric[2], quadric[3] + lift,
-                            quadric[4], quadric[5] + lift, gx, gy, gz)
-        along = gx * dx + gy * dy + gz * dz
-        if not along > 0.0 or not np.isfinite(along):
-            dx, dy, dz, along = gx, gy, gz, gg  # A gives no direction: go along g
-        step = miss / along
-        out[0] += step * dx
-        out[1] += step * dy
-        out[2] += step * dz
-    return max(evaluate(quadric, out[0], out[1], out[2]), 0.0)
-
-
-place_keeping_volume = borrowing_kernel(_place_keeping_volume)
 
 
 def _appearance_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact,

@@ -65,6 +65,7 @@ from .link import (
 from .memory import borrow, borrowing_kernel, prefetch
 from .pairs import merge_pairs, update_vertex_pairs
 from .quadrics import QUADRIC_SIZE
+from .volume import with_volume
 
 STATUS_EXHAUSTED = 0  # nothing valid left to contract
 STATUS_STEPS_DONE = 1  # max_steps contractions done, more may follow
@@ -86,7 +87,8 @@ PARAM_DISTANCE_WEIGHT = 4  # weight of the one-step distance in the cost (distan
 # would move the other loop's lists): STATUS_NEED_POOL_SPACE instead.
 PARAM_STOP_COST = 5
 PARAM_SHARED_COMPLEX = 6
-N_PARAMS = 7
+PARAM_VOLUME_WEIGHT = 7
+N_PARAMS = 8
 
 
 class Complex(NamedTuple):
@@ -419,6 +421,7 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, s
     cos_step = params[PARAM_COS_STEP_TURN]
     rank_tolerance = params[PARAM_RANK_TOLERANCE]
     distance_weight = params[PARAM_DISTANCE_WEIGHT]
+    volume_weight = params[PARAM_VOLUME_WEIGHT]
     # Borrowed views: this call's caller holds every array until it returns.
     vertices, vertex_quadrics = borrow(cx.vertices), borrow(cx.vertex_quadrics)
     vertex_alive, vertex_refused = borrow(cx.vertex_alive), borrow(cx.vertex_refused)
@@ -456,6 +459,7 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, s
     has_wedges = cx.wedge_quadrics.shape[0] > 0
     has_uvs = has_wedges and scratch.settings[SETTING_UV_OFFSET] >= 0.0
     quadric = np.zeros(QUADRIC_SIZE)
+    penalised = np.zeros(QUADRIC_SIZE)
     position = np.zeros(3)
     steps = 0
     while steps < max_steps:
@@ -514,6 +518,13 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, s
         cost = candidate_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact,
                               rank_tolerance, quadric, position, faces, face_alive, start,
                               count, pool, look)
+        if volume_weight > 0.0:
+            # May move the position. With wedges the cost is the total quadric's, the
+            # appearance's Schur complements included (look[10], appearance.py).
+            cost = with_volume(vertices, faces, face_alive, start, count, pool, a, b,
+                               look[10] if has_wedges else quadric,
+                               quadric[0] + quadric[3] + quadric[5], cost, volume_weight,
+                               rank_tolerance, penalised, position)
         px, py, pz = position[0], position[1], position[2]
         if has_wedges:
             if look[7][1] < 0:
@@ -532,14 +543,16 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, s
             vertex_refused[a] = 1
             vertex_refused[b] = 1
             continue
-        if distance_weight > 0.0:
-            # Priced only here, at the top of the queue: the heap holds the quadric cost,
-            # a lower bound, and a candidate that costs more than the next key goes back
-            # with its full cost as its key (reset to the quadric cost when an end
-            # changes). Below the next key the term changes nothing, so it is not priced.
+        if volume_weight > 0.0 or distance_weight > 0.0:
+            # The volume and distance terms are priced only here, at the top of the
+            # queue: the heap holds the quadric cost, a lower bound, and a candidate that
+            # costs more than the next key goes back with its full cost as its key (reset
+            # to the quadric cost when an end changes). Below the next key the distance
+            # changes nothing, so it is not priced.
             next_key = heap_entries[0, 0] if heap_size[0] > 0 else cost_key(np.inf)
-            cost = with_distance(vertices, faces, start, count, pool, a, b, px, py, pz,
-                                 quadric, cost, key, next_key, distance_weight)
+            if distance_weight > 0.0:
+                cost = with_distance(vertices, faces, start, count, pool, a, b, px, py, pz,
+                                     quadric, cost, key, next_key, distance_weight)
             if cost_key(cost) > next_key:
                 update(heap_entries, heap_position, heap_size, cost_key(cost), pair(a, b),
                        edge)

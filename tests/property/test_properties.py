@@ -46,6 +46,7 @@ options = st.fixed_dictionaries(
     {
         "error_mode": st.sampled_from(["additive", "exact"]),
         "distance_weight": st.sampled_from([0.0, 1.0]),
+        "volume_weight": st.sampled_from([0.0, 3.0]),
     }
 )
 # Without topology preservation too. Its coarsest levels break the "every vertex used"
@@ -56,6 +57,7 @@ any_options = st.fixed_dictionaries(
         "error_mode": st.sampled_from(["additive", "exact"]),
         "preserve_topology": st.booleans(),
         "distance_weight": st.sampled_from([0.0, 1.0]),
+        "volume_weight": st.sampled_from([0.0, 3.0]),
     }
 )
 

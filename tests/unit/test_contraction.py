@@ -94,7 +94,8 @@ def test_error_never_decreases_as_levels_coarsen():
     {}, {"error_mode": "exact"}, {"weighting": "none"}, {"weighting": "sqrt_area"},
     {"weighting": "volume"},
     {"boundary_weight": 0.0}, {"max_face_turn_deg": 180.0}, {"distance_weight": 0.0},
-    {"distance_weight": 3.0, "error_mode": "exact"},
+    {"distance_weight": 3.0, "error_mode": "exact"}, {"volume_weight": 0.0},
+    {"volume_weight": 10.0, "distance_weight": 0.0},
 ])
 def test_build_is_deterministic(options, tmp_path):
     mesh = icosphere(2, jitter=0.05, seed=3)
@@ -119,10 +120,12 @@ def test_a_small_mesh_reports_progress_while_it_contracts():
     assert len({f for f in seen if 0.02 < f < 0.95}) >= 8
 
 
-@pytest.mark.parametrize("distance_weight", [0.0, 1.0])
-def test_lod_equals_the_greedy_run_stopped_there(distance_weight):
+@pytest.mark.parametrize("distance_weight, volume_weight", [(0.0, 0.0), (1.0, 0.0), (0.0, 3.0),
+                                                           (2.0, 3.0)])
+def test_lod_equals_the_greedy_run_stopped_there(distance_weight, volume_weight):
     vertices, faces = icosphere(2, jitter=0.05, seed=1)
-    options = qem_core.BuildOptions(distance_weight=distance_weight)
+    options = qem_core.BuildOptions(distance_weight=distance_weight,
+                                    volume_weight=volume_weight)
     pm = qem_core.build(vertices, faces, options)
     for n in (pm.n_base, 20, 60, 120, pm.n_full):
         run = contract_greedily(vertices.astype(float), faces.astype(np.int32), options,

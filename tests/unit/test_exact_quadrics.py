@@ -129,8 +129,9 @@ def test_vertex_and_edge_quadrics_count_each_original_plane_once(mesh_name, weig
 def test_every_contraction_cost_is_the_exact_quadric_at_the_new_position(mesh_name):
     """cost_j = Q_C(p_j) for the cluster C made by contraction j and the position p_j it
     got, read from the record: the position the survivor had before its next
-    contraction, or at the end of the run. The quadric alone: no distance charge."""
-    options = qem_core.BuildOptions(error_mode="exact", distance_weight=0.0)
+    contraction, or at the end of the run. The quadric alone: no distance or volume
+    charge."""
+    options = qem_core.BuildOptions(error_mode="exact", distance_weight=0.0, volume_weight=0.0)
     prepared, run = _run(mesh_name, options, None)
     planes = Planes(prepared.vertices, prepared.faces, options)
     record, k, n = run.record, run.n_contractions, len(prepared.vertices)

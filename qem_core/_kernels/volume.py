@@ -19,7 +19,7 @@ the distance term does (distance.py): the total weight W of those planes times d
 for the part of delta^2 beyond ``FREE_RATIO`` times the mean square of the plane
 distances (cost / W). Plain quadric placement on a convex part puts the vertex on the
 chord side, so each step shaves a little volume and the shaving adds up over the
-coarse levels (Spot keeps 67 % of its volume at 17 vertices); the charge both delays
+coarse levels (Spot keeps 69 % of its volume at 17 vertices); the charge both delays
 such contractions and moves their vertex: the placement is re-minimised with the term
 as one more plane quadric, w W / |g|^2 (g.p - g.o - h)^2, and whichever of the two
 positions is charged less wins. Fine levels, where the quadric's placement changes

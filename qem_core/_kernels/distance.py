@@ -235,11 +235,14 @@ def _with_distance(vertices, faces, start, count, pool, a, b, px, py, pz, quadri
     """The cost of contracting (a, b) to p with the distance term (module docstring), or
     the quadric cost ``cost`` where the full cost would not reach ``next_key``.
 
-    quadric : (10,) the position quadric of the contraction, cost its value at p, key
-    the heap key the candidate was popped with: a key above the quadric cost is a full
-    cost this function returned before (the loop put the candidate back with it), still
-    current since neither end has changed, so it is returned as it is (a contraction
-    elsewhere in the star that moves neither end leaves it too: the term is lazy).
+    quadric : (10,) the position quadric of the contraction; cost its cost at p so far:
+    the quadric's value, plus the volume term's charge when that is on (volume.py), which
+    then also counts in the free part. key: the heap key the candidate was popped with.
+    A key above ``cost`` is a full cost the loop put the candidate back with, still
+    current since neither end has changed, so it is returned as it is. A contraction
+    elsewhere in the star that moves neither end leaves it too (the terms are lazy), and
+    with the volume term on that key may be one with a volume charge only, priced
+    before such a move: the candidate then goes at that cost, its distance unpriced.
     next_key: the key now at the top of the heap. A candidate whose full cost stays at
     or below it is contracted now either way, so the distance only has to be known
     beyond that, and the star search stops early there.

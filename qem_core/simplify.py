@@ -240,8 +240,8 @@ def contract_greedily(
     ``mesh_edges``: the edges of ``faces`` if already found (`prepare_mesh_and_edges`).
     ``wedges``: appearance attributes (attributes.py), kept in Hoppe's quadric.
     """
-    if (options.parallel_rounds and wedges is None and options.pair_threshold == 0.0
-            and not options.preserve_volume and max_contractions is None
+    if (options.parallel_rounds and _costs_are_geometric(options, wedges)
+            and options.pair_threshold == 0.0 and max_contractions is None
             and vertices.shape[0] > rounds.PARALLEL_MIN_VERTICES):
         # Parallel rounds (rounds.py), on the mesh in z-order.
         if mesh_edges is None:
@@ -254,6 +254,13 @@ def contract_greedily(
         return ContractionRun(record, cx, run.n_contractions)
     return _contract(vertices, faces, options, progress, max_contractions, mesh_edges, wedges,
                      in_rounds=False)
+
+
+def _costs_are_geometric(options: BuildOptions, wedges: Wedges | None) -> bool:
+    """Whether a candidate's first cost needs only the quadrics (`fill_heap`, the loops
+    of parallel rounds), not its faces: no appearance attributes, no hard volume
+    constraint (`fill_costs`)."""
+    return wedges is None and not options.preserve_volume
 
 
 def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
@@ -287,7 +294,7 @@ def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
     candidates = np.concatenate([edges, pairs.ends]) if pairs.ends.size else edges
     heap = make_heap(candidates.shape[0])
     exact = options.error_mode == "exact"
-    if wedges is None and not options.preserve_volume:
+    if _costs_are_geometric(options, wedges):
         if done:
             [(ids, candidates)] = edges_by_part(cx, hood.part, 1)  # all in part 0
         else:

@@ -120,17 +120,13 @@ def _place_keeping_volume(quadric, vertices, faces, face_alive, start, count, po
 place_keeping_volume = borrowing_kernel(_place_keeping_volume)
 
 
-
-def _charged(quadric, px, py, pz, gx, gy, gz, h, mx, my, mz, gg, weight, free,
-             volume_weight):
-    """The quadric cost at p plus the charge for the height of its volume change."""
+def _charge(px, py, pz, gx, gy, gz, h, mx, my, mz, gg, weight, free, volume_weight):
+    """The charge for the height of the volume change of the new vertex at p."""
     miss = gx * (px - mx) + gy * (py - my) + gz * (pz - mz) - h
-    height2 = miss * miss / gg
-    cost = max(evaluate(quadric, px, py, pz), 0.0)
-    return cost + volume_weight * weight * max(height2 - free, 0.0)
+    return volume_weight * weight * max(miss * miss / gg - free, 0.0)
 
 
-charged = numba.njit(cache=True, inline="always")(_charged)
+charge = numba.njit(cache=True, inline="always")(_charge)
 
 
 def _with_volume(vertices, faces, face_alive, start, count, pool, a, b, quadric, weight,
@@ -153,8 +149,8 @@ def _with_volume(vertices, faces, face_alive, start, count, pool, a, b, quadric,
         return cost
     free = FREE_RATIO * cost / weight
     px, py, pz = position[0], position[1], position[2]
-    at_placement = charged(quadric, px, py, pz, gx, gy, gz, h, mx, my, mz, gg, weight, free,
-                           volume_weight)
+    at_placement = cost + charge(px, py, pz, gx, gy, gz, h, mx, my, mz, gg, weight, free,
+                                 volume_weight)
     if at_placement <= cost:
         return cost
     # The term as a plane quadric: (w W / |g|^2) (g.p - level)^2.
@@ -173,8 +169,9 @@ def _with_volume(vertices, faces, face_alive, start, count, pool, a, b, quadric,
     penalised[8] -= lift * level * gz
     penalised[9] += lift * level * level
     place(penalised, vertices, a, b, rank_tolerance, position)
-    at_minimiser = charged(quadric, position[0], position[1], position[2], gx, gy, gz, h,
-                           mx, my, mz, gg, weight, free, volume_weight)
+    qx, qy, qz = position[0], position[1], position[2]
+    at_minimiser = max(evaluate(quadric, qx, qy, qz), 0.0) + charge(
+        qx, qy, qz, gx, gy, gz, h, mx, my, mz, gg, weight, free, volume_weight)
     if at_minimiser < at_placement:
         # Never below the cost on entry, the heap's key: placement.py's minimiser can
         # miss the exact one by the rank tolerance, and a cost below the key would

@@ -124,6 +124,22 @@ def evaluate_quadric(q, v) -> float:
     return float(v @ a @ v + 2 * q[6:9] @ v + q[9])
 
 
+def star_quadric(vertices, faces, a, b, weighting: str = "none") -> np.ndarray:
+    """The sum of the plane quadrics of the faces around a and b."""
+    vertices = np.asarray(vertices, float)
+    total = np.zeros(10)
+    for face in faces:
+        if a in face or b in face:
+            total += plane_quadric(*vertices[list(face)], weighting)
+    return total
+
+
+def enclosed_volume(vertices, faces) -> float:
+    """The signed volume a closed surface encloses (sum of tetrahedra from the origin)."""
+    v = np.asarray(vertices, float)[np.asarray(faces)]
+    return float(np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2])).sum() / 6.0)
+
+
 # -- Exact comparisons and vectorised topology checks --------------------------------
 # The checks above walk Python lists and are too slow for the shared meshes (up to 270k
 # faces); the ones below do the same with numpy sorts. test_shared_meshes.py checks that

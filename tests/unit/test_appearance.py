@@ -22,6 +22,7 @@ from qem_core.attributes import make_wedges
 from qem_core.options import BuildOptions
 from qem_core.prepare import prepare_mesh
 from qem_core.simplify import contract_greedily, to_unit_scale
+from tests import reference
 
 REPO = Path(__file__).resolve().parents[2]
 SPOT = REPO / "server" / "demo" / "spot.obj"
@@ -42,11 +43,6 @@ def _uv_areas(faces_uv: np.ndarray) -> np.ndarray:
     d1 = faces_uv[:, 1] - faces_uv[:, 0]
     d2 = faces_uv[:, 2] - faces_uv[:, 0]
     return d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
-
-
-def _volume(vertices: np.ndarray, faces: np.ndarray) -> float:
-    v = vertices[faces]
-    return float(np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2])).sum() / 6.0)
 
 
 # -- the O(m) solve -------------------------------------------------------------------
@@ -223,18 +219,18 @@ def test_vertex_colours_are_kept_in_range():
                     reason="needs ../shared/meshes (fandisk.ply)")
 def test_volume_is_kept_on_fandisk():
     mesh = qem_core.load_mesh(SHARED / "fandisk.ply")
-    before = _volume(mesh.vertices, mesh.faces)
+    before = reference.enclosed_volume(mesh.vertices, mesh.faces)
     pm = qem_core.build(mesh.vertices, mesh.faces, {"preserve_volume": True})
     for fraction in (0.5, 0.1, 0.02):
         vertices, faces = pm.lod(int(fraction * mesh.vertices.shape[0]))
-        assert abs(_volume(vertices, faces) - before) <= 1e-4 * abs(before)
+        assert abs(reference.enclosed_volume(vertices, faces) - before) <= 1e-4 * abs(before)
 
 
 def test_volume_is_kept_on_spot(spot):
-    before = _volume(spot.vertices, spot.faces)
+    before = reference.enclosed_volume(spot.vertices, spot.faces)
     pm = qem_core.build_mesh(spot, {"preserve_volume": True})
     vertices, faces = pm.lod(60)
-    assert abs(_volume(vertices, faces) - before) <= 1e-6 * abs(before)
+    assert abs(reference.enclosed_volume(vertices, faces) - before) <= 1e-6 * abs(before)
 
 
 # -- bad input -------------------------------------------------------------------------

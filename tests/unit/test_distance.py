@@ -13,6 +13,7 @@ from qem_core._kernels.distance import (
     with_distance,
 )
 from qem_core._kernels.heap import cost_key, key_cost
+from tests import reference
 from tests.tiny_meshes import grid, icosphere
 
 
@@ -140,17 +141,8 @@ def test_star_distance_matches_a_brute_force_over_its_points(seed):
 
 def quadric_cost(vertices, faces, a, b, p):
     """(quadric, cost) of contracting (a, b) to p, unweighted planes of their faces."""
-    q = np.zeros(10)
-    for face in faces:
-        if a in face or b in face:
-            u, v, w = vertices[face]
-            n = np.cross(v - u, w - u)
-            n /= np.linalg.norm(n)
-            d = -n @ u
-            q += [n[0] * n[0], n[0] * n[1], n[0] * n[2], n[1] * n[1], n[1] * n[2],
-                  n[2] * n[2], d * n[0], d * n[1], d * n[2], d * d]
-    a_matrix = np.array([[q[0], q[1], q[2]], [q[1], q[3], q[4]], [q[2], q[4], q[5]]])
-    return q, float(p @ a_matrix @ p + 2 * q[6:9] @ p + q[9])
+    q = reference.star_quadric(vertices, faces, a, b)
+    return q, reference.evaluate_quadric(q, p)
 
 
 def test_with_distance_charges_a_cut_and_leaves_a_flat_move_alone():

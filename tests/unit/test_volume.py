@@ -9,14 +9,10 @@ import pytest
 import qem_core
 from qem_core._kernels.adjacency import make_face_lists
 from qem_core._kernels.volume import FREE_RATIO, volume_constraint, with_volume
+from tests import reference
 from tests.tiny_meshes import grid, icosphere
 
 SPOT = Path(__file__).resolve().parents[2] / "server" / "demo" / "spot.obj"
-
-
-def enclosed_volume(vertices, faces):
-    v = np.asarray(vertices)[np.asarray(faces)]
-    return float(np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2])).sum() / 6.0)
 
 
 def contracted(vertices, faces, a, b, p):
@@ -31,25 +27,6 @@ def lists_of(vertices, faces):
     faces = np.asarray(faces, np.int32)
     lists = make_face_lists(faces, len(vertices), capacity=faces.size)
     return faces, np.ones(len(faces), np.uint8), lists.start, lists.count, lists.pool
-
-
-def quadric_of(vertices, faces, a, b):
-    """Unweighted plane quadric of the faces around a and b."""
-    q = np.zeros(10)
-    for face in faces:
-        if a in face or b in face:
-            u, v, w = np.asarray(vertices)[face]
-            n = np.cross(v - u, w - u)
-            n /= np.linalg.norm(n)
-            d = -n @ u
-            q += [n[0] * n[0], n[0] * n[1], n[0] * n[2], n[1] * n[1], n[1] * n[2],
-                  n[2] * n[2], d * n[0], d * n[1], d * n[2], d * d]
-    return q
-
-
-def evaluate(q, p):
-    a = np.array([[q[0], q[1], q[2]], [q[1], q[3], q[4]], [q[2], q[4], q[5]]])
-    return float(p @ a @ p + 2 * q[6:9] @ p + q[9])
 
 
 def an_edge(faces, rng):
@@ -67,9 +44,9 @@ def test_the_constraint_gives_the_volume_a_contraction_adds(seed):
     origin = 0.5 * (vertices[a] + vertices[b])
     args = lists_of(vertices, faces)
     gx, gy, gz, h = volume_constraint(vertices, *args, a, b, *origin)
-    before = enclosed_volume(vertices, faces)
+    before = reference.enclosed_volume(vertices, faces)
     for p in origin + rng.normal(scale=0.3, size=(5, 3)):
-        after = enclosed_volume(*contracted(vertices, faces, a, b, p))
+        after = reference.enclosed_volume(*contracted(vertices, faces, a, b, p))
         added = np.dot([gx, gy, gz], p - origin) - h
         assert added == pytest.approx(after - before, rel=1e-9, abs=1e-12)
 
@@ -78,11 +55,11 @@ def test_a_flat_contraction_pays_nothing_and_stays():
     vertices, faces = grid(4)
     a, b = 5, 6  # an inner edge of the grid
     p = 0.5 * (vertices[a] + vertices[b])
-    q = quadric_of(vertices, faces, a, b)
+    q = reference.star_quadric(vertices, faces, a, b)
     position = p.copy()
     cost = with_volume(vertices, *lists_of(vertices, faces), a, b, q, q[0] + q[3] + q[5],
-                       evaluate(q, p), 3.0, 1e-6, np.zeros(10), position)
-    assert cost == evaluate(q, p)
+                       reference.evaluate_quadric(q, p), 3.0, 1e-6, np.zeros(10), position)
+    assert cost == reference.evaluate_quadric(q, p)
     assert np.array_equal(position, p)
 
 
@@ -98,11 +75,12 @@ def test_a_flat_contraction_anywhere_stays_in_its_plane(seed):
     normal = turn[:, 2]  # the grid's z axis, turned
     a, b = 5, 6
     p = 0.5 * (vertices[a] + vertices[b])
-    q = quadric_of(vertices, faces, a, b)
+    q = reference.star_quadric(vertices, faces, a, b)
     position = p.copy()
     cost = with_volume(vertices, *lists_of(vertices, faces), a, b, q, q[0] + q[3] + q[5],
-                       evaluate(q, p), 3.0, 1e-6, np.zeros(10), position)
-    assert abs(cost - evaluate(q, p)) < 1e-12  # the quadric's own round-off: 1e-14
+                       reference.evaluate_quadric(q, p), 3.0, 1e-6, np.zeros(10), position)
+    # The quadric's own round-off is 1e-14.
+    assert abs(cost - reference.evaluate_quadric(q, p)) < 1e-12
     assert abs(np.dot(position - p, normal)) < 1e-12
     assert np.linalg.norm(position - p) <= np.linalg.norm(vertices[a] - p) + 1e-12
 
@@ -118,7 +96,7 @@ def test_the_charged_cost_is_never_below_the_quadric_cost(seed):
     args = lists_of(vertices, faces)
     for _ in range(20):
         a, b = an_edge(faces, rng)
-        q = quadric_of(vertices, faces, a, b)
+        q = reference.star_quadric(vertices, faces, a, b)
         position = np.zeros(3)
         cost = place(q, vertices, a, b, 1e-6, position)
         for weight in (0.5, 3.0, 100.0):
@@ -137,9 +115,9 @@ def test_a_chord_on_a_sphere_is_charged_and_moved_out():
     vertices /= np.linalg.norm(vertices, axis=1)[:, None]
     a, b = an_edge(faces, np.random.default_rng(0))
     chord = 0.5 * (vertices[a] + vertices[b])
-    q = quadric_of(vertices, faces, a, b)
+    q = reference.star_quadric(vertices, faces, a, b)
     weight = q[0] + q[3] + q[5]
-    cost = evaluate(q, chord)
+    cost = reference.evaluate_quadric(q, chord)
     args = lists_of(vertices, faces)
     position = chord.copy()
     charged = with_volume(vertices, *args, a, b, q, weight, cost, 3.0, 1e-6, np.zeros(10),
@@ -155,7 +133,7 @@ def test_a_chord_on_a_sphere_is_charged_and_moved_out():
     assert charged < at_chord
     assert np.linalg.norm(position) > np.linalg.norm(chord)
     assert height2(position) < height2(chord)
-    expected = evaluate(q, position) + 3.0 * weight * max(
+    expected = reference.evaluate_quadric(q, position) + 3.0 * weight * max(
         height2(position) - FREE_RATIO * cost / weight, 0.0)
     # The cost on entry is a floor (the heap's key): here it is the chord's, above the
     # plane cost of the new position.
@@ -165,13 +143,13 @@ def test_a_chord_on_a_sphere_is_charged_and_moved_out():
 @pytest.mark.skipif(not SPOT.exists(), reason="needs the demo mesh server/demo/spot.obj")
 def test_the_term_keeps_the_coarse_levels_volume_on_spot():
     spot = qem_core.load_mesh(SPOT)
-    before = enclosed_volume(spot.vertices, spot.faces)
+    before = reference.enclosed_volume(spot.vertices, spot.faces)
     plain = qem_core.build(spot.vertices, spot.faces, {"volume_weight": 0.0})
     priced = qem_core.build(spot.vertices, spot.faces)
     kept = {}
     for n in (12, 17, 25, 40, 60, 100):
-        kept[n] = (enclosed_volume(*plain.lod(n)) / before,
-                   enclosed_volume(*priced.lod(n)) / before)
+        kept[n] = (reference.enclosed_volume(*plain.lod(n)) / before,
+                   reference.enclosed_volume(*priced.lod(n)) / before)
         assert kept[n][1] > kept[n][0], kept
     # Measured: 69 % of the volume kept at 17 vertices without the term, 76 % with it.
     assert kept[17][1] > kept[17][0] + 0.05, kept

@@ -88,7 +88,8 @@ ProgressCallback = Callable[[float], None]
 
 
 class ContractionRun(NamedTuple):
-    """What the greedy loop leaves: the record and the final complex."""
+    """What the greedy loop leaves: the record and the final complex (after parallel
+    rounds, its mesh only: see `rounds.in_input_order`)."""
 
     record: Record
     complex: Complex

@@ -47,7 +47,9 @@ def make_face_lists(faces: np.ndarray, n_vertices: int, capacity: int,
     ``alive`` (m,) uint8: list only those items (all if None)."""
     count = np.zeros(n_vertices, np.int32)
     start = np.zeros(n_vertices, np.int64)
-    pool = np.full(capacity, -1, np.int32)
+    # Uninitialised: only the runs are ever read, and the pool's room past them (most of
+    # it in a parallel round's regions) then costs no page until a run is written there.
+    pool = np.empty(capacity, np.int32)
     if alive is None:
         alive = np.ones(faces.shape[0], np.uint8)
     used = fill_face_lists(faces, alive, start, count, pool)

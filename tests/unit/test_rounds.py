@@ -161,3 +161,38 @@ def test_progress_rises_through_the_rounds(small_rounds):
     assert len(seen) > 3
     assert seen == sorted(seen)
     assert seen[0] == 0.0 and seen[-1] == 1.0
+
+
+def test_a_progress_callback_that_raises_stops_the_rounds(small_rounds, monkeypatch):
+    """A cancelled build (the callback raises, as a deleted job's does) stops the loops of
+    the round it is in, and the error reaches the caller; the next build is whole."""
+    vertices, faces = icosphere(4, jitter=0.05, seed=4)
+
+    class Cancelled(Exception):
+        pass
+
+    def cancel_in_a_round(fraction):
+        if 0.0 < fraction < 0.95:
+            raise Cancelled
+
+    monkeypatch.setattr(rounds, "REPORT_INTERVAL_S", 0.0)
+    with pytest.raises(Cancelled):
+        qem_core.build(vertices, faces, progress=cancel_in_a_round)
+    assert not small_rounds  # raised inside the rounds, which never returned
+    monkeypatch.setattr(rounds, "PARALLEL_MIN_VERTICES", 1 << 40)
+    strict = qem_core.build(vertices, faces)
+    monkeypatch.setattr(rounds, "PARALLEL_MIN_VERTICES", 200)
+    in_rounds = qem_core.build(vertices, faces)
+    assert small_rounds and not same_levels(strict, in_rounds)
+    assert same_levels(in_rounds, qem_core.build(vertices, faces))
+
+
+def test_a_loop_that_fails_in_a_round_raises(small_rounds, monkeypatch):
+    vertices, faces = icosphere(4, jitter=0.05, seed=4)
+
+    def failing(self, chunk, stop):
+        raise RuntimeError("a part's loop failed")
+
+    monkeypatch.setattr(rounds._PartLoop, "run_to_end", failing)
+    with pytest.raises(RuntimeError, match="part's loop failed"):
+        qem_core.build(vertices, faces)

@@ -15,12 +15,16 @@ the build call (or the peer's simplify call) alone. qem-lod is measured four way
   whose code is compiled ahead of time and loaded by an untimed warm-up call too.
 - **hot without rounds**: the same with `parallel_rounds=false`, one strictly greedy
   sequence: what the parallel rounds (qem_core/rounds.py) gain, in the same run.
+- **second build**: --runs runs, each after an untimed build of the same mesh in the
+  same process: what a long-lived worker (the server's job pool) pays for its next
+  builds. A process's first big build also faults in its memory from the kernel, which
+  the next ones, reusing the freed memory, mostly do not.
 
 Numba compile time is reported as cold - median(warm cache). The peers are
 meshoptimizer and PyMeshLab (default options), each simplifying the same mesh once to
 --fraction of its referenced vertices, --runs runs. Runs are interleaved (qem warm, qem
-hot, qem hot without rounds, meshoptimizer, pymeshlab, then again) so slow drifts of the
-machine hit all alike.
+hot, qem hot without rounds, qem second build, meshoptimizer, pymeshlab, then again) so
+slow drifts of the machine hit all alike.
 
 With --stages, --runs more hot builds (fresh children) time the stages of the build:
 each stage function of `qem_core.simplify` (STAGES) is wrapped, in the child, by a clock
@@ -213,8 +217,9 @@ def measure_build_speed(
     serial_hot = _Series(f"{qem_lod.variant_label(serial_values)} hot (run alone)")
     if option_values.get("parallel_rounds") is False:
         serial_hot.status = "skipped: the options already turn parallel rounds off"
+    second = _Series(f"{label} second build (after one untimed build of the same mesh)")
     peers = {name: _Series(f"{name} to {fraction:g}") for name in PEER_NAMES}
-    qem_series = (cold, warm, hot, serial_hot)
+    qem_series = (cold, warm, hot, serial_hot, second)
     if qem_note is not None:
         for series in qem_series:
             series.status = f"skipped: {qem_note}"
@@ -245,6 +250,14 @@ def measure_build_speed(
                 before_args=(serial_values,),
                 **qem_options,
             )
+            _measure_into(
+                second,
+                qem_lod.build_progressive_mesh,
+                build_args,
+                before=qem_lod.build_progressive_mesh,
+                before_args=build_args,
+                **qem_options,
+            )
             for name, series in peers.items():
                 peer = PEERS[name]
                 _measure_into(
@@ -260,7 +273,7 @@ def measure_build_speed(
                 f"{mesh.name} run {run + 1}/{runs}: "
                 + ", ".join(
                     f"{s.name} {format_ms(s.times_s[-1] if s.ok else None)} ms"
-                    for s in (warm, hot, serial_hot, *peers.values())
+                    for s in (warm, hot, serial_hot, second, *peers.values())
                 )
             )
     compile_s = None
@@ -268,7 +281,8 @@ def measure_build_speed(
         compile_s = cold.median_s - warm.median_s
     ratios = {}
     for qem_series_name, series in (("warm_cache", warm), ("hot", hot),
-                                    ("hot_without_rounds", serial_hot)):
+                                    ("hot_without_rounds", serial_hot),
+                                    ("second_build", second)):
         for name, peer_series in peers.items():
             if series.ok and peer_series.ok:
                 ratios[f"{qem_series_name}/{name}"] = series.median_s / peer_series.median_s
@@ -288,7 +302,8 @@ def measure_build_speed(
             "qem_options": option_values,
         },
         "qem_note": qem_note,
-        "series": [s.to_dict() for s in (cold, warm, hot, serial_hot, *peers.values())],
+        "series": [s.to_dict() for s in (cold, warm, hot, serial_hot, second,
+                                         *peers.values())],
         "numba_compile_s": compile_s,
         "ratios": ratios,
     }
@@ -352,7 +367,8 @@ def write_build_speed_report(path: Path, entry: dict[str, Any]) -> None:
         f"`{settings['qem_options'] or 'defaults'}`: cold = empty NUMBA_CACHE_DIR (compile "
         "+ run), warm cache = the same cache dir afterwards (cache load + run), hot = after "
         "an untimed build of a 22-vertex mesh in the same process (run alone); "
-        "`parallel_rounds=False` is the same build as one strictly greedy sequence. The peers "
+        "`parallel_rounds=False` is the same build as one strictly greedy sequence; second "
+        "build = after an untimed build of the same mesh in the same process. The peers "
         f"simplify once to {settings['peer_fraction']:g} of the referenced vertices "
         f"({settings['peer_target_faces']} faces), default options, after an untimed call "
         "on the same tiny mesh. Peak RSS: the child's peak during the call (MiB, includes "

@@ -212,16 +212,16 @@ def _run_loops(executor: ThreadPoolExecutor, loops: list[_PartLoop], chunk: int,
     and a barrier after each left a core idle for the difference. If ``report`` raises
     (a cancelled build), the loops stop after their chunk and the error goes on."""
     stop = threading.Event()
-    threads = [executor.submit(loop.run_to_end, chunk, stop) for loop in loops if loop.running]
+    futures = [executor.submit(loop.run_to_end, chunk, stop) for loop in loops if loop.running]
     try:
-        running = threads
+        running = futures
         while running:
             _, running = wait(running, timeout=REPORT_INTERVAL_S)
             report(sum(loop.done for loop in loops))
     finally:
         stop.set()
-    for thread in threads:
-        thread.result()  # a loop's error, if one failed
+    for future in futures:
+        future.result()  # a loop's error, if one failed
     return sum(loop.done for loop in loops)
 
 

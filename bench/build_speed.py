@@ -4,7 +4,7 @@
         [--qem-option name=value ...] [--timeout SECONDS] [--stages]
 
 Every run is a fresh child process (`bench.measure.measure_in_child`); the clock covers
-the build call (or the peer's simplify call) alone. qem-lod is measured four ways:
+the build call (or the peer's simplify call) alone. qem-lod is measured five ways:
 
 - **cold**: once, with NUMBA_CACHE_DIR pointing at an empty temporary folder, so the
   build compiles every kernel: compile + run.

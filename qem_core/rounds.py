@@ -198,9 +198,14 @@ class _PartLoop:
         return steps
 
     def run_to_end(self, chunk: int, stop: threading.Event) -> None:
-        """Chunks of contractions until the loop is done or ``stop`` is set."""
-        while self.running and not stop.is_set():
-            self.run(chunk)
+        """Chunks of contractions until the loop is done or ``stop`` is set; sets it
+        when this loop fails, so the others stop too."""
+        try:
+            while self.running and not stop.is_set():
+                self.run(chunk)
+        except BaseException:
+            stop.set()
+            raise
 
 
 def _run_loops(executor: ThreadPoolExecutor, loops: list[_PartLoop], chunk: int,
@@ -210,7 +215,8 @@ def _run_loops(executor: ThreadPoolExecutor, loops: list[_PartLoop], chunk: int,
 
     No loop waits for another between chunks: the parts' chunks take different times,
     and a barrier after each left a core idle for the difference. If ``report`` raises
-    (a cancelled build), the loops stop after their chunk and the error goes on."""
+    (a cancelled build), the loops stop after their chunk and the error goes on (a
+    loop's own error, if one also failed, is then not raised)."""
     stop = threading.Event()
     futures = [executor.submit(loop.run_to_end, chunk, stop) for loop in loops if loop.running]
     try:

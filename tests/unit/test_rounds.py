@@ -5,6 +5,9 @@ it so small meshes run several rounds (the shared igea and face_rangemap meshes 
 at the real threshold in test_shared_meshes.py).
 """
 
+import threading
+import time
+
 import numpy as np
 import pytest
 from hypothesis import given
@@ -165,7 +168,8 @@ def test_progress_rises_through_the_rounds(small_rounds):
 
 def test_a_progress_callback_that_raises_stops_the_rounds(small_rounds, monkeypatch):
     """A cancelled build (the callback raises, as a deleted job's does) stops the loops of
-    the round it is in, and the error reaches the caller; the next build is whole."""
+    the round it is in after the chunk they are in, and the error reaches the caller; the
+    next build is whole."""
     vertices, faces = icosphere(4, jitter=0.05, seed=4)
     expected = qem_core.build(vertices, faces)
     rounds_before = len(small_rounds)
@@ -173,23 +177,40 @@ def test_a_progress_callback_that_raises_stops_the_rounds(small_rounds, monkeypa
     class Cancelled(Exception):
         pass
 
+    cancelled = threading.Event()
+
     def cancel_in_a_round(fraction):
         if 0.0 < fraction < 0.95:
+            cancelled.set()
             raise Cancelled
 
+    chunks = []
+    run = rounds._PartLoop.run
+
+    def run_after_the_cancel(self, max_steps):
+        # Each loop's first chunk starts once the cancel is raised (and has had time to
+        # reach the driver's stop), so a loop that ignored the stop would run more.
+        cancelled.wait()
+        time.sleep(0.05)
+        chunks.append(max_steps)
+        return run(self, max_steps)
+
     monkeypatch.setattr(rounds, "REPORT_INTERVAL_S", 0.0)
+    monkeypatch.setattr(rounds._PartLoop, "run", run_after_the_cancel)
     with pytest.raises(Cancelled):
         qem_core.build(vertices, faces, progress=cancel_in_a_round)
     assert len(small_rounds) == rounds_before  # raised inside the rounds: none returned
+    assert 1 <= len(chunks) <= rounds.ROUND_PARTS
+    monkeypatch.setattr(rounds._PartLoop, "run", run)
     assert same_levels(expected, qem_core.build(vertices, faces))
 
 
 def test_a_loop_that_fails_in_a_round_raises(small_rounds, monkeypatch):
     vertices, faces = icosphere(4, jitter=0.05, seed=4)
 
-    def failing(self, chunk, stop):
+    def failing(self, max_steps):
         raise RuntimeError("a part's loop failed")
 
-    monkeypatch.setattr(rounds._PartLoop, "run_to_end", failing)
+    monkeypatch.setattr(rounds._PartLoop, "run", failing)
     with pytest.raises(RuntimeError, match="part's loop failed"):
         qem_core.build(vertices, faces)

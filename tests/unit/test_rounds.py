@@ -190,7 +190,7 @@ def test_a_progress_callback_that_raises_stops_the_rounds(small_rounds, monkeypa
     def run_after_the_cancel(self, max_steps):
         # Each loop's first chunk starts once the cancel is raised (and has had time to
         # reach the driver's stop), so a loop that ignored the stop would run more.
-        cancelled.wait()
+        cancelled.wait(timeout=10)  # a bound, not a hang, if no cancel ever comes
         time.sleep(0.05)
         chunks.append(max_steps)
         return run(self, max_steps)

@@ -273,7 +273,7 @@ def measure_build_speed(
                 f"{mesh.name} run {run + 1}/{runs}: "
                 + ", ".join(
                     f"{s.name} {format_ms(s.times_s[-1] if s.ok else None)} ms"
-                    for s in (warm, hot, serial_hot, second, *peers.values())
+                    for s in (*qem_series[1:], *peers.values())
                 )
             )
     compile_s = None
@@ -302,8 +302,7 @@ def measure_build_speed(
             "qem_options": option_values,
         },
         "qem_note": qem_note,
-        "series": [s.to_dict() for s in (cold, warm, hot, serial_hot, second,
-                                         *peers.values())],
+        "series": [s.to_dict() for s in (*qem_series, *peers.values())],
         "numba_compile_s": compile_s,
         "ratios": ratios,
     }

@@ -250,8 +250,8 @@ def _appearance_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact
             if members[i, 1] == i:
                 add_schur(group_rows[i], m, total)
     if settings[SETTING_VOLUME] != 0.0:
-        return place_keeping_volume(total, vertices, faces, face_alive, start, count, pool,
-                                    a, b, rank_tolerance, position)
+        return place_keeping_volume(total, vertices, faces, start, count, pool, a, b,
+                                    rank_tolerance, position)
     return place(total, vertices, a, b, rank_tolerance, position)
 
 

@@ -521,7 +521,7 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, s
         if volume_weight > 0.0:
             # May move the position. With wedges the cost is the total quadric's, the
             # appearance's Schur complements included (look[10], appearance.py).
-            cost = with_volume(vertices, faces, face_alive, start, count, pool, a, b,
+            cost = with_volume(vertices, faces, start, count, pool, a, b,
                                look[10] if has_wedges else quadric,
                                quadric[0] + quadric[3] + quadric[5], cost, volume_weight,
                                rank_tolerance, penalised, position)

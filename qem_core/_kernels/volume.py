@@ -46,7 +46,7 @@ import numpy as np
 from .adjacency import corner_of, has_corner
 from .memory import borrowing_kernel
 from .placement import minimise_near, place, solve3
-from .quadrics import QUADRIC_SIZE, evaluate
+from .quadrics import QUADRIC_SIZE, add_plane, evaluate
 
 # The squared height of the volume change a contraction may reach for free, in units of
 # the mean square of its plane distances. 0 charges every change, which moves the
@@ -56,10 +56,11 @@ from .quadrics import QUADRIC_SIZE, evaluate
 FREE_RATIO = 0.5
 
 
-def _volume_constraint(vertices, faces, face_alive, start, count, pool, a, b, ox, oy, oz):
+def _volume_constraint(vertices, faces, start, count, pool, a, b, ox, oy, oz):
     """(gx, gy, gz, h): the volume under the faces around a and b stays the same when
     the new vertex p meets g.(p - o) = h (o a nearby origin, for precision). Faces with
-    both a and b die: their volume after is zero."""
+    both a and b die: their volume after is zero. (A vertex's run holds its live faces
+    only, adjacency.py: no face_alive to read.)"""
     gx = gy = gz = 0.0
     h = 0.0
     for side in range(2):
@@ -67,8 +68,6 @@ def _volume_constraint(vertices, faces, face_alive, start, count, pool, a, b, ox
         s = start[v]
         for i in range(count[v]):
             f = pool[s + i]
-            if not face_alive[f]:
-                continue
             shared = has_corner(faces, f, other)
             if shared and v == b:
                 continue  # counted from a
@@ -89,8 +88,8 @@ def _volume_constraint(vertices, faces, face_alive, start, count, pool, a, b, ox
 volume_constraint = borrowing_kernel(_volume_constraint)
 
 
-def _place_keeping_volume(quadric, vertices, faces, face_alive, start, count, pool, a, b,
-                          rank_tolerance, out):
+def _place_keeping_volume(quadric, vertices, faces, start, count, pool, a, b, rank_tolerance,
+                          out):
     """The minimiser of ``quadric`` on the plane g.p = h that keeps the volume: from the
     unconstrained minimiser p0, step A^-1 g (h - g.p0) / (g^T A^-1 g) (a Lagrange
     multiplier), with A lifted by a small multiple of I so flat directions take the
@@ -99,8 +98,7 @@ def _place_keeping_volume(quadric, vertices, faces, face_alive, start, count, po
     my = 0.5 * (vertices[a, 1] + vertices[b, 1])
     mz = 0.5 * (vertices[a, 2] + vertices[b, 2])
     minimise_near(quadric, mx, my, mz, rank_tolerance, out)
-    gx, gy, gz, h = volume_constraint(vertices, faces, face_alive, start, count, pool, a, b,
-                                      mx, my, mz)
+    gx, gy, gz, h = volume_constraint(vertices, faces, start, count, pool, a, b, mx, my, mz)
     gg = gx * gx + gy * gy + gz * gz
     if gg > 0.0:
         miss = h - (gx * (out[0] - mx) + gy * (out[1] - my) + gz * (out[2] - mz))
@@ -129,8 +127,8 @@ def _charge(px, py, pz, gx, gy, gz, h, mx, my, mz, gg, weight, free, volume_weig
 charge = numba.njit(cache=True, inline="always")(_charge)
 
 
-def _with_volume(vertices, faces, face_alive, start, count, pool, a, b, quadric, weight,
-                 cost, volume_weight, rank_tolerance, penalised, position):
+def _with_volume(vertices, faces, start, count, pool, a, b, quadric, weight, cost,
+                 volume_weight, rank_tolerance, penalised, position):
     """The cost of contracting (a, b) with the volume term (module docstring), and its
     position, written to ``position`` (3,), which holds the quadric's placement on entry.
 
@@ -142,8 +140,7 @@ def _with_volume(vertices, faces, face_alive, start, count, pool, a, b, quadric,
     mx = 0.5 * (vertices[a, 0] + vertices[b, 0])
     my = 0.5 * (vertices[a, 1] + vertices[b, 1])
     mz = 0.5 * (vertices[a, 2] + vertices[b, 2])
-    gx, gy, gz, h = volume_constraint(vertices, faces, face_alive, start, count, pool, a, b,
-                                      mx, my, mz)
+    gx, gy, gz, h = volume_constraint(vertices, faces, start, count, pool, a, b, mx, my, mz)
     gg = gx * gx + gy * gy + gz * gz
     if not (gg > 0.0 and weight > 0.0):
         return cost
@@ -155,19 +152,9 @@ def _with_volume(vertices, faces, face_alive, start, count, pool, a, b, quadric,
         return cost
     # The term as a plane quadric: (w W / |g|^2) (g.p - level)^2.
     level = h + gx * mx + gy * my + gz * mz
-    lift = volume_weight * weight / gg
     for k in range(QUADRIC_SIZE):
         penalised[k] = quadric[k]
-    penalised[0] += lift * gx * gx
-    penalised[1] += lift * gx * gy
-    penalised[2] += lift * gx * gz
-    penalised[3] += lift * gy * gy
-    penalised[4] += lift * gy * gz
-    penalised[5] += lift * gz * gz
-    penalised[6] -= lift * level * gx
-    penalised[7] -= lift * level * gy
-    penalised[8] -= lift * level * gz
-    penalised[9] += lift * level * level
+    add_plane(penalised, gx, gy, gz, -level, volume_weight * weight / gg)
     place(penalised, vertices, a, b, rank_tolerance, position)
     qx, qy, qz = position[0], position[1], position[2]
     at_minimiser = max(evaluate(quadric, qx, qy, qz), 0.0) + charge(

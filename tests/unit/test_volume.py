@@ -26,7 +26,7 @@ def contracted(vertices, faces, a, b, p):
 def lists_of(vertices, faces):
     faces = np.asarray(faces, np.int32)
     lists = make_face_lists(faces, len(vertices), capacity=faces.size)
-    return faces, np.ones(len(faces), np.uint8), lists.start, lists.count, lists.pool
+    return faces, lists.start, lists.count, lists.pool
 
 
 def an_edge(faces, rng):

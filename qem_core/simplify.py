@@ -58,6 +58,7 @@ from ._kernels.setup import fill_border_quadrics, fill_heap, sum_quadrics
 from .attributes import Wedges, check_options_for_wedges, make_wedges
 from .mesh import Mesh
 from .options import ERROR_MODE_CODES, WEIGHTING_AREA_EXPONENTS, WEIGHTING_CODES, BuildOptions
+from .page_advice import without_huge_page_advice
 from .prepare import MeshEdges, prepare_mesh_and_edges, unique_edges
 from .progressive import ProgressiveMesh
 from .record import grown, make_record, with_room_for
@@ -467,6 +468,13 @@ def build(
     """
     if not isinstance(options, BuildOptions):
         options = BuildOptions.from_mapping(options)
+    # The build's working arrays are allocated with small pages (page_advice.py).
+    with without_huge_page_advice():
+        return _build(vertices, faces, options, progress, attributes_of)
+
+
+def _build(vertices, faces, options: BuildOptions, progress: ProgressCallback | None,
+           attributes_of: Mesh | None) -> ProgressiveMesh:
     prepared, mesh_edges = prepare_mesh_and_edges(vertices, faces, options.merge_coincident)
     if progress is not None:
         progress(0.0)

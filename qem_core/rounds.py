@@ -11,7 +11,9 @@ part, and the loops share nothing that changes. Each loop has its own heap, face
 pool, generation counter and record.
 
 Each loop stops before a candidate that costs more than the round's stop cost, the
-``STOP_QUANTILE`` quantile of the costs of all the round's candidates when it starts.
+``STOP_QUANTILE`` quantile of the costs of all the round's candidates when it starts, so
+its heap holds only the candidates at or below that cost (the others are parked, see
+heap.py): half the rows, and no sinking of the edges re-priced above it.
 The parts' records are then merged by cost (`record.append_merged`), so the sequence is
 the greedy one except for the band's candidates below the stop cost, which wait for the
 next round. That round cuts along another axis, so the band is inside a part again.
@@ -47,7 +49,7 @@ from ._kernels.contract import (
     Scratch,
     run_contractions,
 )
-from ._kernels.heap import Heap, key_cost
+from ._kernels.heap import Heap, key_cost, park_above
 from ._kernels.link import PART_FROZEN, Neighbourhood, restart_generations
 from ._kernels.pairs import Pairs
 from ._kernels.partition import (
@@ -313,13 +315,16 @@ def _start_round(cx: Complex, hood: Neighbourhood, pairs: Pairs, params: np.ndar
         heap = Heap(np.zeros((max(ids.size, 1), 3), np.int64), position, np.zeros(1, np.int64))
         fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, ends, ids,
                   params[PARAM_EXACT] != 0.0, params[PARAM_RANK_TOLERANCE], heap.entries,
-                  heap.position, heap.size)
+                  heap.position, heap.size, False)
         heaps.append(heap)
     keys = np.concatenate([heap.entries[: heap.size[0], 0] for heap in heaps])
     if keys.size == 0:
         return None
     k = int(STOP_QUANTILE * (keys.size - 1))
     stop_key = np.partition(keys, k)[k]
+    for heap in heaps:
+        # The loops stop before the candidates above the round's cost: those stay out.
+        park_above(heap.entries, heap.position, heap.size, stop_key)
     round_params = params.copy()
     round_params[PARAM_STOP_COST] = key_cost(stop_key)
     round_params[PARAM_SHARED_COMPLEX] = 1.0

@@ -302,7 +302,7 @@ def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
         else:
             ids = np.arange(candidates.shape[0], dtype=np.int64)
         fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, candidates, ids, exact,
-                  RANK_TOLERANCE, heap.entries, heap.position, heap.size)
+                  RANK_TOLERANCE, heap.entries, heap.position, heap.size, True)
     else:
         fill_costs(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, candidates, exact,
                    RANK_TOLERANCE, cx.faces, cx.face_alive, lists.start, lists.count,

@@ -26,7 +26,8 @@ vertex is contracted into, the vertex's missing edges go back in with fresh cost
 pair contraction on, the pairs (pairs.py) are candidates too, numbered after the edges;
 they skip the link condition. No contraction may leave a vertex without a face. In a
 parallel round (rounds.py) each loop holds only the edges within its part of the
-complex and stops at the round's cost (PARAM_STOP_COST).
+complex and stops at the round's cost (PARAM_STOP_COST); an edge priced above that cost
+is parked out of the heap (heap.update_or_park) rather than sunk to its place.
 
 The loop runs in chunks of ``max_steps`` contractions so Python can report progress, and
 stops early with a status code when an array is full (Python grows it and resumes).
@@ -52,7 +53,7 @@ from .appearance import (
 )
 from .distance import with_distance
 from .guards import faces_keep_orientation, leaves_a_vertex_bare
-from .heap import cost_key, pair, remove, top, update
+from .heap import cost_key, pair, remove, top, update, update_or_park
 from .link import (
     NEAR_EDGE_A,
     NEAR_EDGE_B,
@@ -203,8 +204,8 @@ prefetch_next = numba.njit(cache=True, inline="always")(_prefetch_next)
 
 def _update_vertex_edges(vertices, vertex_quadrics, vertex_refused, edge_quadrics, faces,
                          face_alive, face_edge, start, count, pool, near, generation, retry,
-                         part, heap_entries, heap_position, heap_size, v, only_missing,
-                         exact, rank_tolerance, quadric, position, look):
+                         part, heap_entries, heap_position, heap_size, stop_key, v,
+                         only_missing, exact, rank_tolerance, quadric, position, look):
     """Give every edge of v its current cost in the heap (inserting it if it was out).
 
     With ``only_missing``, edges already in the heap are left alone (their cost is
@@ -243,8 +244,8 @@ def _update_vertex_edges(vertices, vertex_quadrics, vertex_refused, edge_quadric
                 continue
             edge = face_edge[f, corner if step == 1 else (corner + 2) % 3]
             if only_missing:
-                if heap_position[edge] >= 0:
-                    continue
+                if heap_position[edge] != -1:
+                    continue  # in the heap, or parked: its cost is current
             elif vertex_refused[x]:
                 vertex_refused[x] = 0
                 retry[n_retry] = x
@@ -252,8 +253,8 @@ def _update_vertex_edges(vertices, vertex_quadrics, vertex_refused, edge_quadric
             cost = candidate_cost(vertices, vertex_quadrics, edge_quadrics, v, x, edge, exact,
                                   rank_tolerance, quadric, position, faces, face_alive, start,
                                   count, pool, look)
-            update(heap_entries, heap_position, heap_size, cost_key(cost), pair(v, x),
-                   edge)
+            update_or_park(heap_entries, heap_position, heap_size, cost_key(cost), pair(v, x),
+                           edge, stop_key)
     return g, n_retry
 
 
@@ -363,7 +364,7 @@ rewrite_faces = borrowing_kernel(_rewrite_faces)
 def _update_after_contraction(vertices, vertex_quadrics, vertex_refused, edge_quadrics,
                               faces, face_alive, face_edge, start, count, pool, near,
                               generation, retry, part, heap_entries, heap_position, heap_size,
-                              pair_ends, pair_alive, first_pair, pair_start, pair_count,
+                              stop_key, pair_ends, pair_alive, first_pair, pair_start, pair_count,
                               pair_pool, a, b, killed, killed_from, killed_to, exact,
                               rank_tolerance, quadric, position, look):
     """New costs for the edges (and pairs) of the new vertex a; edges left without a
@@ -378,7 +379,7 @@ def _update_after_contraction(vertices, vertex_quadrics, vertex_refused, edge_qu
     g, n_retry = update_vertex_edges(vertices, vertex_quadrics, vertex_refused,
                                      edge_quadrics, faces, face_alive, face_edge, start,
                                      count, pool, near, generation, retry, part, heap_entries,
-                                     heap_position, heap_size, a, all_edges, exact,
+                                     heap_position, heap_size, stop_key, a, all_edges, exact,
                                      rank_tolerance, quadric, position, look)
     if has_pairs:
         update_vertex_pairs(vertices, vertex_quadrics, edge_quadrics, near, generation,
@@ -398,7 +399,8 @@ def _update_after_contraction(vertices, vertex_quadrics, vertex_refused, edge_qu
         g, _ = update_vertex_edges(vertices, vertex_quadrics, vertex_refused, edge_quadrics,
                                    faces, face_alive, face_edge, start, count, pool, near,
                                    generation, retry, part, heap_entries, heap_position,
-                                   heap_size, v, only_missing, exact, rank_tolerance, quadric,
+                                   heap_size, stop_key, v, only_missing, exact, rank_tolerance,
+                                   quadric,
                                    position, look)
         if has_pairs:
             update_vertex_pairs(vertices, vertex_quadrics, edge_quadrics, near, generation,
@@ -597,7 +599,7 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, s
         update_after_contraction(vertices, vertex_quadrics, vertex_refused, edge_quadrics,
                                  faces, face_alive, face_edge, start, count, pool, near,
                                  generation, retry, part, heap_entries, heap_position,
-                                 heap_size, pair_ends, pair_alive, first_pair, pair_start,
+                                 heap_size, stop_key, pair_ends, pair_alive, first_pair, pair_start,
                                  pair_count, pair_pool, a, b, killed, killed_from, n_killed, exact,
                                  rank_tolerance, quadric, position, look)
     return STATUS_STEPS_DONE, steps

@@ -35,6 +35,9 @@ from .memory import borrowing_kernel
 
 ARITY = 4
 _LOW32 = (1 << 32) - 1
+# ``position`` of an edge kept out of the heap because its cost is above the loop's stop
+# cost (`update_or_park`): not missing, not a candidate this round.
+PARKED = -2
 
 
 class Heap(NamedTuple):
@@ -206,3 +209,35 @@ def _remove(entries, position, size, edge):
 
 
 remove = borrowing_kernel(_remove)
+
+
+def _update_or_park(entries, position, size, key, ab, edge, stop_key):
+    """`update`, but an edge whose key is above ``stop_key`` leaves the heap instead and is
+    `PARKED`: the loop stops before it would reach it, so it need not sink to its place
+    (a parallel round's heap holds the candidates below the round's cost alone)."""
+    if key > stop_key:
+        remove(entries, position, size, edge)
+        position[edge] = PARKED
+    else:
+        update(entries, position, size, key, ab, edge)
+
+
+update_or_park = borrowing_kernel(_update_or_park)
+
+
+def _park_above(entries, position, size, stop_key):
+    """Keep the rows 0..size-1 (written unordered) with a key at or below ``stop_key``, park
+    the others (`PARKED`), and order what is kept (`heapify`)."""
+    kept = 0
+    for i in range(size[0]):
+        if entries[i, 0] > stop_key:
+            position[entries[i, 2]] = PARKED
+            continue
+        for column in range(3):
+            entries[kept, column] = entries[i, column]
+        kept += 1
+    size[0] = kept
+    heapify(entries, position, size)
+
+
+park_above = borrowing_kernel(_park_above)

@@ -54,8 +54,9 @@ fill_border_quadrics = numba.njit(cache=True)(_fill_border_quadrics)
 
 
 def _fill_heap(vertices, vertex_quadrics, edge_quadrics, edges, ids, exact, rank_tolerance,
-               heap_entries, heap_position, heap_size):
-    """Put every candidate in the heap with its cost, then order it once (O(E)).
+               heap_entries, heap_position, heap_size, order):
+    """Put every candidate in the heap with its cost, then, if ``order``, order it once
+    (O(E); a round orders its heaps itself, `heap.park_above`).
 
     edges : (E, 2) int32 candidates, ids : (E,) int64 their ids (the build's first heap:
     0..E-1, the edges and then the pairs of pairs.py; a round's heap: the edges of its
@@ -77,7 +78,8 @@ def _fill_heap(vertices, vertex_quadrics, edge_quadrics, edges, ids, exact, rank
             heap_entries[e, 1] = heap_ops.pair(a, b)
             heap_entries[e, 2] = edge
     heap_size[0] = n_edges
-    heap_ops.heapify(heap_entries, heap_position, heap_size)
+    if order:
+        heap_ops.heapify(heap_entries, heap_position, heap_size)
 
 
 fill_heap = numba.njit(cache=True, parallel=True)(_fill_heap)

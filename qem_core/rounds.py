@@ -37,6 +37,7 @@ from concurrent.futures import ThreadPoolExecutor, wait
 import numpy as np
 
 from ._kernels.adjacency import FaceLists, make_face_lists
+from ._kernels.bounds import bounding_box
 from ._kernels.contract import (
     PARAM_EXACT,
     PARAM_RANK_TOLERANCE,
@@ -109,8 +110,8 @@ def spatial_order(vertices: np.ndarray, faces: np.ndarray, mesh_edges: MeshEdges
     part is a few long runs of rows. It also puts neighbours near each other in memory.
     """
     n = vertices.shape[0]
-    low = vertices.min(axis=0)
-    extent = float((vertices.max(axis=0) - low).max())
+    low, high = bounding_box(vertices)
+    extent = float((high - low).max())
     codes = np.zeros(n, np.uint64)
     morton_codes(vertices, low, ((1 << MORTON_BITS) - 1) / extent if extent > 0 else 0.0,
                  MORTON_BITS, codes)
@@ -274,7 +275,8 @@ def contract_in_rounds(cx: Complex, hood: Neighbourhood, pairs: Pairs, record: R
     done = 0
     workers = min(ROUND_PARTS, os.cpu_count() or 1)
     # Round r cuts across the r-th longest side of the bounding box (cyclically).
-    sides = np.ptp(cx.vertices[cx.vertex_alive.astype(bool)], axis=0)
+    low, high = bounding_box(cx.vertices, cx.vertex_alive)
+    sides = high - low
     axes = np.argsort(-sides, kind="stable")
     with ThreadPoolExecutor(workers) as executor:
         for round_index in range(MAX_ROUNDS):

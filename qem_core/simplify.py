@@ -29,6 +29,7 @@ from ._kernels.assemble import (
     number_slots,
     order_faces,
 )
+from ._kernels.bounds import bounding_box
 from ._kernels.contract import (
     N_PARAMS,
     PARAM_COS_STEP_TURN,
@@ -105,11 +106,15 @@ def to_unit_scale(vertices: np.ndarray) -> tuple[np.ndarray, int, float]:
     A power of two scales every product, sum and square root the kernels take exactly
     (short of underflow), so the levels are the same at any scale, and the quadrics of a
     mesh measured in light years or in nanometres neither overflow nor underflow."""
-    half_sides = vertices.max(axis=0) / 2 - vertices.min(axis=0) / 2  # halves: no overflow
-    longest = float(half_sides.max()) if vertices.size else 0.0
+    if not vertices.size:
+        return np.ldexp(vertices, 0), 0, 0.0
+    low, high = bounding_box(vertices)
+    half_sides = high / 2 - low / 2  # halves: no overflow
+    longest = float(half_sides.max())
     scale = int(np.frexp(longest)[1]) + 1 if longest > 0.0 else 0
     unit_vertices = np.ldexp(vertices, -scale)
-    diagonal = float(np.linalg.norm(unit_vertices.max(axis=0) - unit_vertices.min(axis=0)))
+    low, high = bounding_box(unit_vertices)
+    diagonal = float(np.linalg.norm(high - low))
     return unit_vertices, scale, diagonal
 
 
@@ -494,7 +499,7 @@ def _build(vertices, faces, options: BuildOptions, progress: ProgressCallback | 
                             mesh_edges=mesh_edges, wedges=wedges)
     run = in_input_units(run, scale, options.weighting)
     metadata = {
-        "bbox": np.stack([prepared.vertices.min(axis=0), prepared.vertices.max(axis=0)]).tolist(),
+        "bbox": bounding_box(prepared.vertices).tolist(),
         "options": options.to_dict(),
         "prepare_report": {k: int(v) for k, v in prepared.report.items()},
         "input_vertices": int(np.asarray(vertices).shape[0]),

@@ -59,6 +59,7 @@ from ._kernels.partition import (
     morton_codes,
     part_edges,
     renumber_edges,
+    renumber_ids,
 )
 from ._kernels.setup import fill_heap
 from .prepare import MeshEdges
@@ -143,7 +144,8 @@ def in_input_order(run_record: Record, cx: Complex, vertex_order: np.ndarray,
     dragon's build."""
 
     def renumber(order: np.ndarray, values: np.ndarray) -> None:
-        values[:] = np.where(values >= 0, order[np.maximum(values, 0)], values)
+        assert values.flags.c_contiguous  # so the flat view below is no copy
+        renumber_ids(order, values.reshape(-1))
 
     def move_rows(order: np.ndarray, values: np.ndarray) -> None:
         values[order] = values.copy()

@@ -143,3 +143,16 @@ def _renumber_edges(face_edge, face_order, edges, edge_face_count, rank, new_fac
 
 
 renumber_edges = numba.njit(cache=True)(_renumber_edges)
+
+
+def _renumber_ids(order, ids):
+    """ids[i] <- order[ids[i]] in place, where ids[i] >= 0 (-1: none, kept). ids: a flat
+    int32 array (a record's vertex or face ids, or faces.reshape(-1)). One pass: numpy's
+    where / maximum / gather took ~40 ms for the dragon's record and faces."""
+    for i in range(ids.shape[0]):
+        v = ids[i]
+        if v >= 0:
+            ids[i] = order[v]
+
+
+renumber_ids = numba.njit(cache=True)(_renumber_ids)

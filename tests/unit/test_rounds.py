@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 
 import qem_core
 from qem_core import rounds
+from qem_core._kernels.partition import renumber_ids
 from qem_core.progressive import ProgressiveMesh
 from qem_core.record import append_merged, make_record
 from tests import reference
@@ -97,6 +98,15 @@ def test_rank_labels_are_the_ranks_of_a_stable_sort(values, n_parts):
     ranks[np.argsort(values, kind="stable")] = np.arange(values.size)
     expected = ranks * n_parts // values.size
     np.testing.assert_array_equal(rounds._rank_labels(values, n_parts), expected)
+
+
+@given(st.permutations(range(12)), st.lists(st.integers(-1, 11), max_size=40))
+def test_renumber_ids_maps_each_id_and_keeps_none(order, ids):
+    order = np.array(order, np.int64)
+    ids = np.array(ids, np.int32)
+    expected = np.where(ids >= 0, order[np.maximum(ids, 0)], -1)
+    renumber_ids(order, ids)
+    np.testing.assert_array_equal(ids, expected)
 
 
 def test_a_closed_mesh_keeps_its_topology_through_the_rounds(small_rounds):

@@ -12,8 +12,9 @@ pool, generation counter and record.
 
 Each loop stops before a candidate that costs more than the round's stop cost, the
 ``STOP_QUANTILE`` quantile of the costs of all the round's candidates when it starts, so
-its heap holds only the candidates at or below that cost (the others are parked, see
-heap.py): half the rows, and no sinking of the edges re-priced above it.
+its heap keeps out the edges priced above that cost (they are parked, see heap.py): half
+the rows, and no sinking of the edges re-priced above it. A candidate whose full cost
+(the distance and volume terms, priced at the top) passes the stop cost waits too.
 The parts' records are then merged by cost (`record.append_merged`), so the sequence is
 the greedy one except for the band's candidates below the stop cost, which wait for the
 next round. That round cuts along another axis, so the band is inside a part again.
@@ -144,7 +145,8 @@ def in_input_order(run_record: Record, cx: Complex, vertex_order: np.ndarray,
     dragon's build."""
 
     def renumber(order: np.ndarray, values: np.ndarray) -> None:
-        assert values.flags.c_contiguous  # so the flat view below is no copy
+        if not values.flags.c_contiguous:  # reshape would copy, and the renumbering be lost
+            raise ValueError("in_input_order renumbers contiguous arrays only")
         renumber_ids(order, values.reshape(-1))
 
     def move_rows(order: np.ndarray, values: np.ndarray) -> None:

@@ -130,12 +130,14 @@ def in_input_units(run: ContractionRun, scale: int, weighting: str) -> Contracti
     if scale == 0:
         return run
     record, cx = run.record, run.complex
+    # Only the rows written: the rest of the record's arrays is uninitialised (make_record).
+    j = run.n_contractions
     cost_scale = scale * round(2 + 2 * WEIGHTING_AREA_EXPONENTS[weighting])
     with np.errstate(over="ignore"):
-        cost = np.minimum(np.ldexp(record.cost, cost_scale), np.finfo(np.float64).max)
+        cost = np.minimum(np.ldexp(record.cost[:j], cost_scale), np.finfo(np.float64).max)
     record = record._replace(
-        position_a=np.ldexp(record.position_a, scale),
-        position_b=np.ldexp(record.position_b, scale),
+        position_a=np.ldexp(record.position_a[:j], scale),
+        position_b=np.ldexp(record.position_b[:j], scale),
         cost=cost,
     )
     return run._replace(record=record, complex=cx._replace(vertices=np.ldexp(cx.vertices, scale)))

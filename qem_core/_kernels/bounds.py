@@ -13,7 +13,8 @@ import numpy as np
 def _bounding_box(vertices, alive):
     """(2, 3) float64: the lowest and the highest coordinate on each axis of the points
     (n, 3), or of those with ``alive[i] != 0`` when ``alive`` is not empty; rows +inf
-    and -inf when there are none."""
+    and -inf when there are none. A zero is +0.0, whichever zero came first (the
+    metadata's bounding box does not depend on it)."""
     box = np.empty((2, 3))
     box[0, :] = np.inf
     box[1, :] = -np.inf
@@ -27,7 +28,7 @@ def _bounding_box(vertices, alive):
                 box[0, d] = x
             if x > box[1, d]:
                 box[1, d] = x
-    return box
+    return box + 0.0  # -0.0 + 0.0 is +0.0
 
 
 _bounding_box_kernel = numba.njit(cache=True)(_bounding_box)

@@ -208,8 +208,10 @@ def _update_vertex_edges(vertices, vertex_quadrics, vertex_refused, edge_quadric
                          only_missing, exact, rank_tolerance, quadric, position, look):
     """Give every edge of v its current cost in the heap (inserting it if it was out).
 
-    With ``only_missing``, edges already in the heap are left alone (their cost is
-    current: it changes only when an end changes, and then this runs for that end).
+    With ``only_missing``, edges already in the heap, or parked above the round's stop
+    key (`heap.update_or_park`, which gives every edge its key here), are left alone
+    (their cost is current: it changes only when an end changes, and then this runs for
+    that end).
     Without it (v was just contracted into), the neighbours that had a candidate refused
     are listed in ``retry`` (and their mark cleared): v's change may have lifted the
     reason. Edges to a vertex of another part than v's (``part``, rounds.py) are left
@@ -550,8 +552,11 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, s
             # queue: the heap holds the quadric cost, a lower bound, and a candidate that
             # costs more than the next key goes back with its full cost as its key (reset
             # to the quadric cost when an end changes). Below the next key the distance
-            # changes nothing, so it is not priced.
+            # changes nothing, so it is not priced. In a parallel round the next key is
+            # at most the round's stop key: the edges above it are parked, not in the
+            # heap, and a candidate whose full cost passes it waits for the next round.
             next_key = heap_entries[0, 0] if heap_size[0] > 0 else cost_key(np.inf)
+            next_key = min(next_key, stop_key)
             if distance_weight > 0.0:
                 cost = with_distance(vertices, faces, start, count, pool, a, b, px, py, pz,
                                      quadric, cost, key, next_key, distance_weight)

@@ -4,7 +4,8 @@ A row of ``entries`` (capacity, 3) int64 is::
 
     [cost key, a << 32 | b, edge id]        (a < b, the edge's ends)
 
-and ``position[edge]`` is the row holding that edge, -1 when it is not in the heap. The
+and ``position[edge]`` is the row holding that edge, -1 when it is not in the heap (-2,
+`PARKED`, when a parallel round keeps it out above its stop cost: `update_or_park`). The
 cost key is the bit pattern of the (non-negative) float64 cost, which orders exactly as
 the cost does; ties are broken by (a, b), which makes the order, and so every level of
 detail, deterministic.
@@ -43,6 +44,7 @@ PARKED = -2
 class Heap(NamedTuple):
     entries: np.ndarray  # (capacity, 3) int64: cost key, a << 32 | b, edge id
     position: np.ndarray  # (capacity,) int32: row of each edge id, -1 if not in the heap
+    # (PARKED: kept out above a round's stop cost)
     size: np.ndarray  # (1,) int64
 
 

@@ -48,21 +48,28 @@ def test_restored_when_the_block_raises(setting_before):
     assert advice_now() is setting_before
 
 
-def test_overlapping_threads_restore_when_the_last_leaves(setting_before):
-    entered, release = threading.Event(), threading.Event()
+@pytest.mark.parametrize("thread_leaves_first", [True, False],
+                         ids=["first in, first out", "first in, last out"])
+def test_overlapping_threads_restore_when_the_last_leaves(setting_before, thread_leaves_first):
+    entered, release, left = threading.Event(), threading.Event(), threading.Event()
 
     def hold():
         with without_huge_page_advice():
             entered.set()
             release.wait(10)
+        left.set()
 
     thread = threading.Thread(target=hold)
     thread.start()
     assert entered.wait(10)
     with without_huge_page_advice():
-        pass
-    assert advice_now() is False  # the other thread's block is still open
-    release.set()
+        if thread_leaves_first:
+            release.set()
+            assert left.wait(10)
+            assert advice_now() is False  # this block is still open
+    if not thread_leaves_first:
+        assert advice_now() is False  # the thread's block is still open
+        release.set()
     thread.join(10)
     assert advice_now() is setting_before
 

@@ -98,23 +98,22 @@ class ContractionRun(NamedTuple):
     n_contractions: int
 
 
-def to_unit_scale(vertices: np.ndarray) -> tuple[np.ndarray, int, float]:
+def to_unit_scale(vertices: np.ndarray,
+                  box: np.ndarray | None = None) -> tuple[np.ndarray, int, float]:
     """(vertices * 2**-e, e, their bounding-box diagonal), e such that the scaled
     vertices have their longest bounding-box side in [0.5, 1): the mesh as `build`
-    contracts it.
+    contracts it. ``box``: the vertices' `bounding_box`, if the caller has it.
 
     A power of two scales every product, sum and square root the kernels take exactly
     (short of underflow), so the levels are the same at any scale, and the quadrics of a
     mesh measured in light years or in nanometres neither overflow nor underflow."""
-    if not vertices.size:
-        return np.ldexp(vertices, 0), 0, 0.0
-    low, high = bounding_box(vertices)
+    low, high = bounding_box(vertices) if box is None else box
     half_sides = high / 2 - low / 2  # halves: no overflow
     longest = float(half_sides.max())
     scale = int(np.frexp(longest)[1]) + 1 if longest > 0.0 else 0
     unit_vertices = np.ldexp(vertices, -scale)
-    low, high = bounding_box(unit_vertices)
-    diagonal = float(np.linalg.norm(high - low))
+    # The scaled corners are the corners of the scaled vertices (the scaling is exact).
+    diagonal = float(np.linalg.norm(np.ldexp(high, -scale) - np.ldexp(low, -scale)))
     return unit_vertices, scale, diagonal
 
 
@@ -490,7 +489,8 @@ def _build(vertices, faces, options: BuildOptions, progress: ProgressCallback | 
         if progress is not None:
             progress(0.02 + 0.93 * fraction)
 
-    unit_vertices, scale, diagonal = to_unit_scale(prepared.vertices)
+    box = bounding_box(prepared.vertices)
+    unit_vertices, scale, diagonal = to_unit_scale(prepared.vertices, box)
     wedges = None
     if attributes_of is not None:
         wedges = make_wedges(attributes_of, prepared.face_map, prepared.faces, options,
@@ -501,7 +501,7 @@ def _build(vertices, faces, options: BuildOptions, progress: ProgressCallback | 
                             mesh_edges=mesh_edges, wedges=wedges)
     run = in_input_units(run, scale, options.weighting)
     metadata = {
-        "bbox": bounding_box(prepared.vertices).tolist(),
+        "bbox": box.tolist(),
         "options": options.to_dict(),
         "prepare_report": {k: int(v) for k, v in prepared.report.items()},
         "input_vertices": int(np.asarray(vertices).shape[0]),

@@ -402,8 +402,7 @@ def _update_after_contraction(vertices, vertex_quadrics, vertex_refused, edge_qu
                                    faces, face_alive, face_edge, start, count, pool, near,
                                    generation, retry, part, heap_entries, heap_position,
                                    heap_size, stop_key, v, only_missing, exact, rank_tolerance,
-                                   quadric,
-                                   position, look)
+                                   quadric, position, look)
         if has_pairs:
             update_vertex_pairs(vertices, vertex_quadrics, edge_quadrics, near, generation,
                                 heap_entries, heap_position, heap_size, pair_ends, pair_alive,

@@ -216,7 +216,7 @@ remove = borrowing_kernel(_remove)
 def _update_or_park(entries, position, size, key, ab, edge, stop_key):
     """`update`, but an edge whose key is above ``stop_key`` leaves the heap instead and is
     `PARKED`: the loop stops before it would reach it, so it need not sink to its place
-    (a parallel round's heap holds the candidates below the round's cost alone)."""
+    (a parallel round's heap keeps out the edges priced above the round's cost)."""
     if key > stop_key:
         remove(entries, position, size, edge)
         position[edge] = PARKED

@@ -15,7 +15,7 @@ from ._kernels.contract import (
     STATUS_NEED_WEDGE_SPACE,
     Record,
 )
-from ._kernels.runs import gather_runs
+from ._kernels.runs import gather_runs, merge_by_running_max
 
 __all__ = ["make_record", "grown", "with_room_for", "append_merged"]
 
@@ -81,11 +81,9 @@ def append_merged(record: Record, parts: Sequence[Record]) -> Record:
     counts = [int(part.counts[0]) for part in parts]
     if sum(counts) == 0:
         return record
-    costs = np.concatenate([np.maximum.accumulate(p.cost[:c])
-                            for p, c in zip(parts, counts, strict=True) if c])
-    part_of = np.repeat(np.arange(len(parts)), counts)
-    local = np.concatenate([np.arange(c) for c in counts])
-    order = np.lexsort((local, part_of, costs))  # rows of the parts' concatenation
+    order = np.empty(sum(counts), np.int64)  # rows of the parts' concatenation
+    merge_by_running_max(np.concatenate([p.cost[:c] for p, c in zip(parts, counts, strict=True)]),
+                         np.cumsum(counts), order)
 
     def merged(field: str) -> np.ndarray:
         rows = [getattr(p, field)[:c] for p, c in zip(parts, counts, strict=True)]

@@ -8,6 +8,7 @@ contractions; this is one pass.
 """
 
 import numba
+import numpy as np
 
 
 def _gather_runs(values, ends, order, out):
@@ -26,3 +27,42 @@ def _gather_runs(values, ends, order, out):
 
 
 gather_runs = numba.njit(cache=True)(_gather_runs)
+
+
+def _merge_by_running_max(costs, part_ends, order):
+    """order (N,) out: the rows of ``costs`` merged part by part on running maxima.
+
+    costs : (N,) float64, the parts' costs one part after another, part p ending at row
+    part_ends[p]. Each part's rows keep their order; the next row taken is the head of
+    the part whose running maximum (its costs so far, the head's included) is smallest,
+    ties to the lower part. The same order as a stable sort of the running maxima by
+    (value, part), NaN after every number as numpy sorts it, in one pass: a round's
+    parts are each in cost order already, and np.lexsort took ~30 ms of a dragon build.
+    """
+    n_parts = part_ends.shape[0]
+    head = np.empty(n_parts, np.int64)
+    running = np.full(n_parts, -np.inf)
+    for p in range(n_parts):
+        head[p] = part_ends[p - 1] if p > 0 else 0
+    for i in range(order.shape[0]):
+        best = -1
+        best_value = 0.0
+        for p in range(n_parts):
+            h = head[p]
+            if h == part_ends[p]:
+                continue
+            value = costs[h]
+            if running[p] != running[p]:
+                value = running[p]  # NaN stays
+            elif value <= running[p]:
+                value = running[p]  # else the head's cost (larger, or NaN) is the maximum
+            # Strictly less, NaN last: ties keep the lower part.
+            if best < 0 or (value == value and (best_value != best_value or value < best_value)):
+                best = p
+                best_value = value
+        order[i] = head[best]
+        head[best] += 1
+        running[best] = best_value
+
+
+merge_by_running_max = numba.njit(cache=True)(_merge_by_running_max)

@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 import qem_core
 from qem_core import rounds
 from qem_core._kernels.partition import renumber_ids
+from qem_core._kernels.runs import merge_by_running_max
 from qem_core.progressive import ProgressiveMesh
 from qem_core.record import append_merged, make_record
 from tests import reference
@@ -89,6 +90,25 @@ def test_merge_grows_the_relabel_array():
     part = part_record([1.0], [[1]], [[2, 3, 4, 5]])
     merged = append_merged(record, [part, part_record([], [], [])])
     assert runs(merged.relabel, merged.relabel_end, 1) == [[2, 3, 4, 5]]
+
+
+COSTS = st.one_of(st.sampled_from([0.0, -0.0, 1.0, 2.0, np.inf, np.nan]),
+                  st.floats(0.0, 4.0, allow_nan=False))
+
+
+@given(st.lists(st.lists(COSTS, max_size=12), min_size=1, max_size=4))
+def test_merge_order_is_a_stable_sort_of_the_running_maxima(parts):
+    """The one-pass merge against the sort it replaces: the running maxima (NaN stays),
+    sorted by (value, part, row), NaN last."""
+    counts = [len(costs) for costs in parts]
+    costs = np.array([c for costs in parts for c in costs], float)
+    running = np.concatenate([np.maximum.accumulate(np.array(c, float)) for c in parts if c]
+                             or [np.zeros(0)])
+    part_of = np.repeat(np.arange(len(parts)), counts)
+    expected = np.lexsort((np.arange(costs.size), part_of, running))
+    order = np.empty(costs.size, np.int64)
+    merge_by_running_max(costs, np.cumsum(counts), order)
+    np.testing.assert_array_equal(order, expected)
 
 
 @given(st.lists(st.integers(0, 4), min_size=1, max_size=60), st.integers(2, 8))

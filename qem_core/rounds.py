@@ -288,7 +288,7 @@ def contract_in_rounds(cx: Complex, hood: Neighbourhood, pairs: Pairs, record: R
             if n_live <= PARALLEL_MIN_VERTICES:
                 break
             restart_generations(hood)
-            loops = _start_round(cx, hood, pairs, params, make_scratch,
+            loops = _start_round(executor, cx, hood, pairs, params, make_scratch,
                                  int(axes[round_index % 3]))
             if loops is None:
                 break
@@ -303,8 +303,9 @@ def contract_in_rounds(cx: Complex, hood: Neighbourhood, pairs: Pairs, record: R
     return record, done
 
 
-def _start_round(cx: Complex, hood: Neighbourhood, pairs: Pairs, params: np.ndarray,
-                 make_scratch: Callable[[], Scratch], axis: int) -> list[_PartLoop] | None:
+def _start_round(executor: ThreadPoolExecutor, cx: Complex, hood: Neighbourhood, pairs: Pairs,
+                 params: np.ndarray, make_scratch: Callable[[], Scratch],
+                 axis: int) -> list[_PartLoop] | None:
     """Cut the complex and set up one loop per part; None if no part has a candidate."""
     n = cx.vertices.shape[0]
     vertices_in_part, faces_in_part = _cut(cx, hood.part, axis)
@@ -328,9 +329,10 @@ def _start_round(cx: Complex, hood: Neighbourhood, pairs: Pairs, params: np.ndar
         return None
     k = int(STOP_QUANTILE * (keys.size - 1))
     stop_key = np.partition(keys, k)[k]
-    for heap in heaps:
-        # The loops stop before the candidates above the round's cost: those stay out.
-        park_above(heap.entries, heap.position, heap.size, stop_key)
+    # The loops stop before the candidates above the round's cost: those stay out. Each
+    # part's heap in a thread (the kernel releases the GIL; the ids are disjoint).
+    list(executor.map(lambda heap: park_above(heap.entries, heap.position, heap.size, stop_key),
+                      heaps))
     round_params = params.copy()
     round_params[PARAM_STOP_COST] = key_cost(stop_key)
     round_params[PARAM_SHARED_COMPLEX] = 1.0

@@ -242,4 +242,5 @@ def _park_above(entries, position, size, stop_key):
     heapify(entries, position, size)
 
 
-park_above = borrowing_kernel(_park_above)
+# nogil: a round parks its parts' heaps in threads at once (rounds.py).
+park_above = borrowing_kernel(_park_above, nogil=True)

@@ -31,10 +31,11 @@ from numba.core import cgutils, types
 from numba.extending import intrinsic
 
 
-def borrowing_kernel(function):
+def borrowing_kernel(function, nogil=False):
     """``numba.njit(cache=True)`` without reference counting (see the module docstring).
-    The kernel must not allocate (numba refuses to compile it then) nor return an array."""
-    return numba.njit(cache=True, _nrt=False)(function)
+    The kernel must not allocate (numba refuses to compile it then) nor return an array.
+    ``nogil``: it releases the GIL, for calls from Python threads at once."""
+    return numba.njit(cache=True, _nrt=False, nogil=nogil)(function)
 
 
 @intrinsic

@@ -208,21 +208,23 @@ def test_a_progress_callback_that_raises_stops_the_rounds(small_rounds, monkeypa
         pass
 
     cancelled = threading.Event()
+    chunks = []
 
     def cancel_in_a_round(fraction):
-        if 0.0 < fraction < 0.95:
+        # Once a loop is in its first chunk: whether the other has started by then is
+        # up to the threads.
+        if 0.0 < fraction < 0.95 and chunks:
             cancelled.set()
             raise Cancelled
 
-    chunks = []
     run = rounds._PartLoop.run
 
     def run_after_the_cancel(self, max_steps):
-        # Each loop's first chunk starts once the cancel is raised (and has had time to
+        # Each loop's first chunk goes on once the cancel is raised (and has had time to
         # reach the driver's stop), so a loop that ignored the stop would run more.
+        chunks.append(max_steps)
         cancelled.wait(timeout=10)  # a bound, not a hang, if no cancel ever comes
         time.sleep(0.05)
-        chunks.append(max_steps)
         return run(self, max_steps)
 
     monkeypatch.setattr(rounds, "REPORT_INTERVAL_S", 0.0)

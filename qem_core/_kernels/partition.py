@@ -79,7 +79,7 @@ def _morton_codes(vertices, low, scale, bits, codes):
     """codes (n,) uint64 out: the z-order code of each vertex on a 2^bits grid, the
     grid cell of a coordinate x being floor((x - low) * scale), clamped to the grid."""
     top = (1 << bits) - 1
-    for i in range(vertices.shape[0]):
+    for i in numba.prange(vertices.shape[0]):
         code = np.uint64(0)
         for axis in range(3):
             cell = (vertices[i, axis] - low[axis]) * scale
@@ -90,7 +90,7 @@ def _morton_codes(vertices, low, scale, bits, codes):
         codes[i] = code
 
 
-morton_codes = numba.njit(cache=True)(_morton_codes)
+morton_codes = numba.njit(cache=True, parallel=True)(_morton_codes)
 
 
 def _faces_by_lowest_corner(faces, rank, face_order, renumbered):
@@ -148,11 +148,12 @@ renumber_edges = numba.njit(cache=True)(_renumber_edges)
 def _renumber_ids(order, ids):
     """ids[i] <- order[ids[i]] in place, where ids[i] >= 0 (-1: none, kept). ids: a flat
     int32 array (a record's vertex or face ids, or faces.reshape(-1)). One pass: numpy's
-    where / maximum / gather took ~40 ms for the dragon's record and faces."""
-    for i in range(ids.shape[0]):
+    where / maximum / gather took ~40 ms for the dragon's record and faces. Each id is its
+    own: the threads share the ids."""
+    for i in numba.prange(ids.shape[0]):
         v = ids[i]
         if v >= 0:
             ids[i] = order[v]
 
 
-renumber_ids = numba.njit(cache=True)(_renumber_ids)
+renumber_ids = numba.njit(cache=True, parallel=True)(_renumber_ids)

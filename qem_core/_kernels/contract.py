@@ -155,16 +155,18 @@ class Scratch(NamedTuple):
 
 
 def _prefetch_neighbourhood(vertices, vertex_quadrics, edge_quadrics, face_normals, faces,
-                            face_edge, start, count, pool, heap_position, v, exact):
-    """Ask for the rows a contraction at v will read (see memory.py): positions and
-    quadrics of v's neighbours, normals of its faces, heap positions (and in exact mode
-    quadrics) of its edges. A quadric row is 80 bytes: two cache lines."""
+                            face_edge, start, count, pool, heap_position, near, v, exact):
+    """Ask for the rows a contraction at v will read (see memory.py): the neighbourhood
+    rows of v's neighbours (`link.gather`, next), their positions and quadrics, normals
+    of its faces, heap positions (and in exact mode quadrics) of its edges. A quadric row
+    is 80 bytes: two cache lines."""
     s = start[v]
     for i in range(count[v]):
         f = pool[s + i]
         prefetch(face_normals, f, 0)
         for k in range(3):
             x = faces[f, k]
+            prefetch(near, x, 0)
             prefetch(vertices, x, 0)
             prefetch(vertex_quadrics, x, 0)
             prefetch(vertex_quadrics, x, 8 * QUADRIC_SIZE - 8)
@@ -492,13 +494,13 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, s
             or record_counts[4] + count[a] + count[b] > wedge_relabel.shape[0]
         ):
             return STATUS_NEED_WEDGE_SPACE, steps
+        for v in (a, b):
+            prefetch_neighbourhood(vertices, vertex_quadrics, edge_quadrics, face_normals,
+                                   faces, face_edge, start, count, pool, heap_position, near,
+                                   v, exact)
         generation[0] += 1
         g = generation[0]
         facts = gather(faces, face_edge, start, count, pool, a, b, near, g)
-        for v in (a, b):
-            prefetch_neighbourhood(vertices, vertex_quadrics, edge_quadrics, face_normals,
-                                   faces, face_edge, start, count, pool, heap_position, v,
-                                   exact)
         remove(heap_entries, heap_position, heap_size, edge)
         prefetch_next(heap_entries, heap_size, start, count, pool, faces, face_edge, 0)
         if edge >= first_pair:

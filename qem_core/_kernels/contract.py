@@ -180,6 +180,33 @@ def _prefetch_neighbourhood(vertices, vertex_quadrics, edge_quadrics, face_norma
 prefetch_neighbourhood = borrowing_kernel(_prefetch_neighbourhood)
 
 
+def _prefetch_opposites(faces, start, count, pool, near, heap_entries, heap_position, a, b,
+                        stage):
+    """Ask for what the contraction of (a, b) will read of the opposite vertex x of each
+    face abx once its checks pass, in two stages, each reading what the stage before
+    asked for: 0 where x's face list is, and the heap row of edge b-x (merge_edges takes
+    it out of the heap); 1 the list itself (rewrite_faces takes the face abx out of it).
+    Call after `link.gather` (near[x, NEAR_EDGE_B] is edge b-x)."""
+    s = start[a]
+    for i in range(count[a]):
+        f = pool[s + i]
+        c0, c1, c2 = faces[f, 0], faces[f, 1], faces[f, 2]
+        if c0 != b and c1 != b and c2 != b:
+            continue
+        x = c0 + c1 + c2 - a - b
+        if stage == 0:
+            prefetch(start, x, 0)
+            prefetch(count, x, 0)
+            row = heap_position[near[x, NEAR_EDGE_B]]
+            if row >= 0:
+                prefetch(heap_entries, row, 0)
+        else:
+            prefetch(pool, start[x], 0)
+
+
+prefetch_opposites = numba.njit(cache=True, inline="always")(_prefetch_opposites)
+
+
 def _prefetch_next(heap_entries, heap_size, start, count, pool, faces, face_edge, stage):
     """Start fetching the face lists and faces of the likely next candidate, the top of
     the heap, in stages spread over the current contraction, each reading what the stage
@@ -501,6 +528,8 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, s
         generation[0] += 1
         g = generation[0]
         facts = gather(faces, face_edge, start, count, pool, a, b, near, g)
+        prefetch_opposites(faces, start, count, pool, near, heap_entries, heap_position, a, b,
+                           0)
         remove(heap_entries, heap_position, heap_size, edge)
         prefetch_next(heap_entries, heap_size, start, count, pool, faces, face_edge, 0)
         if edge >= first_pair:
@@ -543,6 +572,8 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, s
                 vertex_refused[b] = 1
                 continue
         prefetch_next(heap_entries, heap_size, start, count, pool, faces, face_edge, 1)
+        prefetch_opposites(faces, start, count, pool, near, heap_entries, heap_position, a, b,
+                           1)
         if not faces_keep_orientation(vertices, faces, face_normals, start, count, pool, a, b,
                                       px, py, pz, cos_step):
             vertex_refused[a] = 1

@@ -21,6 +21,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ._kernels.memory import sort_chunks
 from ._kernels.topology import (
     count_components,
     find_edges,
@@ -249,7 +250,8 @@ def unique_edges(faces: np.ndarray, n_vertices: int) -> MeshEdges:
     edges = np.zeros((3 * m, 2), np.int32)
     edge_face_count = np.zeros(3 * m, np.int32)
     edge_side = np.zeros(3 * m, np.int64)
-    n_edges = find_edges(faces, n_vertices, face_edge, edges, edge_face_count, edge_side)
+    n_edges = find_edges(faces, n_vertices, face_edge, edges, edge_face_count, edge_side,
+                         sort_chunks())
     # Copies, so the (3m,) upper-bound arrays are freed.
     return MeshEdges(edges[:n_edges].copy(), face_edge, edge_face_count[:n_edges].copy(),
                      edge_side[:n_edges].copy())

@@ -16,6 +16,8 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
+from .memory import sort_chunks
+
 
 def _corner_of(faces, f, v):
     """Which corner (0, 1, 2) of face f is vertex v (v must be one)."""
@@ -52,14 +54,8 @@ def make_face_lists(faces: np.ndarray, n_vertices: int, capacity: int,
     pool = np.empty(capacity, np.int32)
     if alive is None:
         alive = np.ones(faces.shape[0], np.uint8)
-    n_chunks = max(1, min(numba.get_num_threads(), MAX_LIST_CHUNKS))
-    used = fill_face_lists(faces, alive, start, count, pool, n_chunks)
+    used = fill_face_lists(faces, alive, start, count, pool, sort_chunks())
     return FaceLists(start, count, pool, np.array([used], np.int64))
-
-
-# At most this many chunks of items are listed at once by `fill_face_lists` (one row
-# of offsets for each vertex each: memory, not speed, bounds it).
-MAX_LIST_CHUNKS = 8
 
 
 def _fill_face_lists(faces, alive, start, count, pool, n_chunks):

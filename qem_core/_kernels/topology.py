@@ -65,7 +65,7 @@ def _sorted_corner_keys(faces, rows, keys):
 sorted_corner_keys = numba.njit(cache=True)(_sorted_corner_keys)
 
 
-def _find_edges(faces, n_vertices, face_edge, edges, edge_face_count, edge_side):
+def _find_edges(faces, n_vertices, face_edge, edges, edge_face_count, edge_side, n_chunks):
     """Number the undirected edges of ``faces`` in (low, high) order; returns their count E.
 
     faces : (m, 3) int32. Side k of face f runs from corner k to corner k + 1.
@@ -74,52 +74,77 @@ def _find_edges(faces, n_vertices, face_edge, edges, edge_face_count, edge_side)
     edge_face_count : (>= E,) int32 zeros, out: the faces on each edge.
     edge_side : (>= E,) int64 out: the last side (3 f + k) on each edge.
 
-    A counting sort by low end, then an insertion sort of each low end's few sides by
-    high end: O(m), and no (3m,) int64 key array to sort. Each side is one int64,
-    high << 32 | side, so the insertion moves one array (two, high and side apart, cost
-    a third more) and keeps the sides of an edge in side order.
+    A counting sort of the sides by low end, then an insertion sort of each low end's few
+    sides by high end: O(m), and no (3m,) int64 key array to sort. Each side is one int64,
+    high << 32 | side, so the sort moves one array and keeps an edge's sides in side
+    order. In parallel: the faces in ``n_chunks`` chunks for the counting sort (each
+    chunk's sides after the earlier chunks'), then the low ends, each its own sides and
+    edges (an edge is numbered and written from its low end alone); the same numbers for
+    any number of chunks.
     """
     n_faces = faces.shape[0]
+    offset = np.zeros((n_chunks, n_vertices), np.int64)
+    for chunk in numba.prange(n_chunks):
+        for f in range(chunk * n_faces // n_chunks, (chunk + 1) * n_faces // n_chunks):
+            for k in range(3):
+                offset[chunk, min(faces[f, k], faces[f, (k + 1) % 3])] += 1
     bucket = np.zeros(n_vertices + 1, np.int64)
-    for f in range(n_faces):
-        for k in range(3):
-            u, v = faces[f, k], faces[f, (k + 1) % 3]
-            bucket[min(u, v) + 1] += 1
+    total = 0
     for v in range(n_vertices):
-        bucket[v + 1] += bucket[v]
-    fill = bucket[:-1].copy()
+        bucket[v] = total
+        for chunk in range(n_chunks):
+            sides = offset[chunk, v]
+            offset[chunk, v] = total
+            total += sides
+    bucket[n_vertices] = total
     high_and_side = np.zeros(3 * n_faces, np.int64)
-    for f in range(n_faces):
-        for k in range(3):
-            u, v = faces[f, k], faces[f, (k + 1) % 3]
-            low = min(u, v)
-            key = (np.int64(max(u, v)) << 32) | (3 * f + k)
-            i = fill[low]
-            fill[low] = i + 1
-            # Insertion behind smaller keys: the sides come in increasing order.
-            while i > bucket[low] and high_and_side[i - 1] > key:
-                high_and_side[i] = high_and_side[i - 1]
-                i -= 1
-            high_and_side[i] = key
-    n_edges = 0
+    for chunk in numba.prange(n_chunks):
+        for f in range(chunk * n_faces // n_chunks, (chunk + 1) * n_faces // n_chunks):
+            for k in range(3):
+                u, v = faces[f, k], faces[f, (k + 1) % 3]
+                low = min(u, v)
+                i = offset[chunk, low]
+                offset[chunk, low] = i + 1
+                high_and_side[i] = (np.int64(max(u, v)) << 32) | (3 * f + k)
+    # Each low end's sides in increasing (high, side) order, and its number of edges.
+    first_edge = np.zeros(n_vertices + 1, np.int64)
+    for low in numba.prange(n_vertices):
+        begin, end = bucket[low], bucket[low + 1]
+        for i in range(begin + 1, end):
+            key = high_and_side[i]
+            j = i
+            while j > begin and high_and_side[j - 1] > key:
+                high_and_side[j] = high_and_side[j - 1]
+                j -= 1
+            high_and_side[j] = key
+        n_edges = 0
+        previous = -1
+        for i in range(begin, end):
+            high = high_and_side[i] >> 32
+            if high != previous:
+                previous = high
+                n_edges += 1
+        first_edge[low + 1] = n_edges
     for low in range(n_vertices):
+        first_edge[low + 1] += first_edge[low]
+    for low in numba.prange(n_vertices):
+        e = first_edge[low] - 1
         previous = -1
         for i in range(bucket[low], bucket[low + 1]):
             high = high_and_side[i] >> 32
             if high != previous:
                 previous = high
-                edges[n_edges, 0] = low
-                edges[n_edges, 1] = high
-                n_edges += 1
-            e = n_edges - 1
+                e += 1
+                edges[e, 0] = low
+                edges[e, 1] = high
             s = high_and_side[i] & LOW_32_BITS
             face_edge[s // 3, s % 3] = e
             edge_face_count[e] += 1
             edge_side[e] = s
-    return n_edges
+    return first_edge[n_vertices]
 
 
-find_edges = numba.njit(cache=True)(_find_edges)
+find_edges = numba.njit(cache=True, parallel=True)(_find_edges)
 
 
 def _root(parent, v):

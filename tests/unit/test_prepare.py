@@ -4,9 +4,12 @@ input that the build must survive. Expected counts are worked out by hand in com
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 import qem_core
-from qem_core.prepare import prepare_mesh
+from qem_core._kernels.topology import find_edges
+from qem_core.prepare import prepare_mesh, unique_edges
 from tests import reference
 from tests.tiny_meshes import BOWTIE, CUBE, FIN, OCTAHEDRON, SQUARE, TETRAHEDRON, soup
 
@@ -211,3 +214,33 @@ def test_non_manifold_input_builds_and_serves_every_level(mesh, non_manifold_edg
         out_vertices, out_faces = qem_core.apply_splits(*base, pm.splits(pm.n_base, n))
         assert np.array_equal(out_faces, level_faces)
         assert np.array_equal(out_vertices, level_vertices)
+
+
+@given(st.integers(3, 10).flatmap(lambda n: st.tuples(
+    st.just(n),
+    st.lists(st.lists(st.integers(0, n - 1), min_size=3, max_size=3, unique=True),
+             max_size=30))),
+    st.integers(1, 5))
+def test_edges_are_numbered_in_end_order_whatever_the_chunks(drawn, n_chunks):
+    """find_edges against a dictionary of the sides: (low, high) order, each side's edge,
+    the faces on each edge and its last side, the same for any number of chunks."""
+    n, face_list = drawn
+    faces = np.array(face_list, np.int32).reshape(-1, 3)
+    sides = {}
+    for f, face in enumerate(face_list):
+        for k in range(3):
+            u, v = face[k], face[(k + 1) % 3]
+            sides.setdefault((min(u, v), max(u, v)), []).append(3 * f + k)
+    expected = sorted(sides)
+    m = faces.shape[0]
+    face_edge, edges = np.full((m, 3), -1, np.int32), np.full((3 * m, 2), -1, np.int32)
+    counts, last_side = np.zeros(3 * m, np.int32), np.full(3 * m, -1, np.int64)
+    n_edges = find_edges(faces, n, face_edge, edges, counts, last_side, n_chunks)
+    assert n_edges == len(expected)
+    assert [tuple(edge) for edge in edges[:n_edges].tolist()] == expected
+    for e, edge in enumerate(expected):
+        assert counts[e] == len(sides[edge])
+        assert last_side[e] == max(sides[edge])
+        for side in sides[edge]:
+            assert face_edge[side // 3, side % 3] == e
+    assert unique_edges(faces, n).edges.tolist() == edges[:n_edges].tolist()

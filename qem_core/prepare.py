@@ -246,10 +246,10 @@ def unique_edges(faces: np.ndarray, n_vertices: int) -> MeshEdges:
     """The undirected edges of ``faces`` (m, 3) int32 with indices below n_vertices."""
     faces = np.ascontiguousarray(faces, np.int32)
     m = faces.shape[0]
-    face_edge = np.zeros((m, 3), np.int32)
-    edges = np.zeros((3 * m, 2), np.int32)
+    face_edge = np.empty((m, 3), np.int32)  # every side written
+    edges = np.empty((3 * m, 2), np.int32)  # rows past the count are never read
     edge_face_count = np.zeros(3 * m, np.int32)
-    edge_side = np.zeros(3 * m, np.int64)
+    edge_side = np.empty(3 * m, np.int64)
     n_edges = find_edges(faces, n_vertices, face_edge, edges, edge_face_count, edge_side,
                          sort_chunks())
     # Copies, so the (3m,) upper-bound arrays are freed.

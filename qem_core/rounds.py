@@ -114,18 +114,20 @@ def spatial_order(vertices: np.ndarray, faces: np.ndarray, mesh_edges: MeshEdges
     n = vertices.shape[0]
     low, high = bounding_box(vertices)
     extent = float((high - low).max())
-    codes = np.zeros(n, np.uint64)
+    # Uninitialised where a kernel writes every element (zeros cost a memset of reused
+    # memory): the codes, the faces and their order, the renumbered edges.
+    codes = np.empty(n, np.uint64)
     morton_codes(vertices, low, ((1 << MORTON_BITS) - 1) / extent if extent > 0 else 0.0,
                  MORTON_BITS, codes)
     vertex_order = np.argsort(codes, kind="stable")
     rank = np.empty(n, np.int32)
     rank[vertex_order] = np.arange(n, dtype=np.int32)
-    face_order = np.zeros(faces.shape[0], np.int64)
-    ordered_faces = np.zeros(faces.shape, np.int32)
+    face_order = np.empty(faces.shape[0], np.int64)
+    ordered_faces = np.empty(faces.shape, np.int32)
     faces_by_lowest_corner(faces, rank, face_order, ordered_faces)
     n_edges = mesh_edges.edges.shape[0]
-    ordered_edges = MeshEdges(np.zeros((n_edges, 2), np.int32), np.zeros(faces.shape, np.int32),
-                              np.zeros(n_edges, np.int32), np.zeros(n_edges, np.int64))
+    ordered_edges = MeshEdges(np.empty((n_edges, 2), np.int32), np.empty(faces.shape, np.int32),
+                              np.empty(n_edges, np.int32), np.empty(n_edges, np.int64))
     renumber_edges(mesh_edges.face_edge, face_order, mesh_edges.edges,
                    mesh_edges.edge_face_count, rank, ordered_edges.face_edge,
                    ordered_edges.edges, ordered_edges.edge_face_count, ordered_edges.edge_side)
@@ -319,7 +321,8 @@ def _start_round(executor: ThreadPoolExecutor, cx: Complex, hood: Neighbourhood,
     position = np.full(cx.face_edge.max() + 1, -1, np.int32)  # shared: ids are disjoint
     heaps = []
     for ids, ends in edges_by_part(cx, hood.part, ROUND_PARTS):
-        heap = Heap(np.zeros((max(ids.size, 1), 3), np.int64), position, np.zeros(1, np.int64))
+        # Rows 0..ids.size - 1 are all written: no zeros.
+        heap = Heap(np.empty((max(ids.size, 1), 3), np.int64), position, np.zeros(1, np.int64))
         fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, ends, ids,
                   params[PARAM_EXACT] != 0.0, params[PARAM_RANK_TOLERANCE], heap.entries,
                   heap.position, heap.size, False)

@@ -97,7 +97,7 @@ def _find_edges(faces, n_vertices, face_edge, edges, edge_face_count, edge_side,
             offset[chunk, v] = total
             total += sides
     bucket[n_vertices] = total
-    high_and_side = np.zeros(3 * n_faces, np.int64)
+    high_and_side = np.empty(3 * n_faces, np.int64)  # every element written
     for chunk in numba.prange(n_chunks):
         for f in range(chunk * n_faces // n_chunks, (chunk + 1) * n_faces // n_chunks):
             for k in range(3):

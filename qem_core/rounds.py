@@ -172,15 +172,25 @@ def in_input_order(run_record: Record, cx: Complex, vertex_order: np.ndarray,
     return run_record, cx._replace(**{name: left_out(getattr(cx, name)) for name in working})
 
 
-def edges_by_part(cx: Complex, part: np.ndarray,
-                  n_parts: int) -> list[tuple[np.ndarray, np.ndarray]]:
-    """For each part p < n_parts, (ids (E_p,) int64, ends (E_p, 2) int32) of the edges of
-    the live faces with both ends in p (``part`` as `Neighbourhood.part`)."""
+def edges_by_part(cx: Complex, part: np.ndarray, faces_in_part: np.ndarray
+                  ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """For each part p < faces_in_part.size, (ids (E_p,) int64, ends (E_p, 2) int32) of the
+    edges of the live faces with both ends in p (``part`` as `Neighbourhood.part`).
+    faces_in_part : the live faces with all corners in each part (or more): their three
+    sides each are the room for its edges, so they are found in one pass, not counted
+    first."""
     n_edge_ids = int(cx.face_edge.max()) + 1 if cx.face_edge.size else 0
-    starts, ids, ends = part_edges(cx.faces, cx.face_alive, cx.face_edge, part, n_edge_ids,
-                                   n_parts)
-    return [(ids[starts[p]:starts[p + 1]], ends[starts[p]:starts[p + 1]])
-            for p in range(n_parts)]
+    room = 3 * faces_in_part.astype(np.int64)
+    region_start = np.concatenate([[0], np.cumsum(room)[:-1]])
+    ids = np.empty(int(room.sum()), np.int64)
+    ends = np.empty((ids.size, 2), np.int32)
+    found = np.zeros(room.size, np.int64)
+    part_edges(cx.faces, cx.face_alive, cx.face_edge, part, n_edge_ids, region_start,
+               region_start + room, ids, ends, found)
+    if np.any(found > room):
+        raise RuntimeError(f"edges_by_part: {found.tolist()} edges for room {room.tolist()}")
+    return [(ids[start:start + n], ends[start:start + n])
+            for start, n in zip(region_start.tolist(), found.tolist(), strict=True)]
 
 
 class _PartLoop:
@@ -320,7 +330,7 @@ def _start_round(executor: ThreadPoolExecutor, cx: Complex, hood: Neighbourhood,
     lists = make_face_lists(cx.faces, n, capacity=used + sum(room), alive=cx.face_alive)
     position = np.full(cx.face_edge.max() + 1, -1, np.int32)  # shared: ids are disjoint
     heaps = []
-    for ids, ends in edges_by_part(cx, hood.part, ROUND_PARTS):
+    for ids, ends in edges_by_part(cx, hood.part, faces_in_part[:ROUND_PARTS]):
         # Rows 0..ids.size - 1 are all written: no zeros.
         heap = Heap(np.empty((max(ids.size, 1), 3), np.int64), position, np.zeros(1, np.int64))
         fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, ends, ids,

@@ -304,7 +304,9 @@ def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
     exact = options.error_mode == "exact"
     if _costs_are_geometric(options, wedges):
         if done:
-            [(ids, candidates)] = edges_by_part(cx, hood.part, 1)  # all in part 0
+            # All in part 0, every live face.
+            [(ids, candidates)] = edges_by_part(
+                cx, hood.part, np.array([np.count_nonzero(cx.face_alive)]))
         else:
             ids = np.arange(candidates.shape[0], dtype=np.int64)
         fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, candidates, ids, exact,

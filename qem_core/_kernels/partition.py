@@ -6,15 +6,18 @@ import numpy as np
 from .link import PART_FROZEN
 
 
-def _part_edges(faces, face_alive, face_edge, part, n_edge_ids, n_parts):
-    """The edges of the live faces whose two ends are in one part p < n_parts, grouped
-    by part, each once, in order of first appearance.
-
-    Returns (starts (n_parts + 1,) int64, ids (E,) int64, ends (E, 2) int32): the edges
-    of part p are rows starts[p]..starts[p + 1], each its id and its ends (the side's
-    direction in the face that lists it first)."""
+def _part_edges(faces, face_alive, face_edge, part, n_edge_ids, region_start, region_end,
+                ids, ends, found):
+    """The edges of the live faces whose two ends are in one part p (p < found.size),
+    each once, in order of first appearance, in one pass: part p's are written from row
+    region_start[p] of ``ids`` (their ids) and ``ends`` (their ends, the side's
+    direction in the face that lists it first), and counted in ``found[p]``; only those
+    that fit before region_end[p] are written (three rows per face with all corners in p
+    always hold them).
+    """
     seen = np.zeros(n_edge_ids, np.uint8)
-    starts = np.zeros(n_parts + 1, np.int64)
+    n_parts = found.shape[0]
+    found[:] = 0
     for f in range(faces.shape[0]):
         if not face_alive[f]:
             continue
@@ -24,26 +27,12 @@ def _part_edges(faces, face_alive, face_edge, part, n_edge_ids, n_parts):
             if seen[edge] or p >= n_parts or part[faces[f, (k + 1) % 3]] != p:
                 continue
             seen[edge] = 1
-            starts[p + 1] += 1
-    for p in range(n_parts):
-        starts[p + 1] += starts[p]
-    fill = starts[:n_parts].copy()
-    ids = np.zeros(starts[n_parts], np.int64)
-    ends = np.zeros((starts[n_parts], 2), np.int32)
-    for f in range(faces.shape[0]):
-        if not face_alive[f]:
-            continue
-        for k in range(3):
-            edge = face_edge[f, k]
-            if seen[edge] != 1:
-                continue
-            seen[edge] = 2
-            i = fill[part[faces[f, k]]]
-            fill[part[faces[f, k]]] = i + 1
-            ids[i] = edge
-            ends[i, 0] = faces[f, k]
-            ends[i, 1] = faces[f, (k + 1) % 3]
-    return starts, ids, ends
+            i = region_start[p] + found[p]
+            found[p] += 1
+            if i < region_end[p]:  # else the caller raises on found
+                ids[i] = edge
+                ends[i, 0] = faces[f, k]
+                ends[i, 1] = faces[f, (k + 1) % 3]
 
 
 part_edges = numba.njit(cache=True)(_part_edges)

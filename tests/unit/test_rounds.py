@@ -15,8 +15,9 @@ from hypothesis import strategies as st
 
 import qem_core
 from qem_core import rounds
-from qem_core._kernels.partition import renumber_ids
+from qem_core._kernels.partition import part_edges, renumber_ids
 from qem_core._kernels.runs import merge_by_running_max
+from qem_core.prepare import unique_edges
 from qem_core.progressive import ProgressiveMesh
 from qem_core.record import append_merged, make_record
 from tests import reference
@@ -246,3 +247,28 @@ def test_a_loop_that_fails_in_a_round_raises(small_rounds, monkeypatch):
     monkeypatch.setattr(rounds._PartLoop, "run", failing)
     with pytest.raises(RuntimeError, match="part's loop failed"):
         qem_core.build(vertices, faces)
+
+
+def test_part_edges_writes_within_each_region_and_counts_all():
+    faces = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6]], np.int32)
+    face_edge = unique_edges(faces, 7).face_edge
+    part = np.array([0, 0, 0, 0, 1, 1, 1], np.uint8)
+    alive = np.ones(3, np.uint8)
+
+    def run(room):
+        start = np.array([0, room[0]], np.int64)
+        ids = np.full(sum(room), -7, np.int64)
+        ends = np.full((sum(room), 2), -7, np.int32)
+        found = np.zeros(2, np.int64)
+        part_edges(faces, alive, face_edge, part, int(face_edge.max()) + 1, start,
+                   start + np.array(room), ids, ends, found)
+        return ids, ends, found
+
+    ids, ends, found = run([6, 3])  # three rows per face of each part
+    assert found.tolist() == [5, 3]
+    assert ends[:5].tolist() == [[0, 1], [1, 2], [2, 0], [2, 3], [3, 0]]
+    assert ends[6:9].tolist() == [[4, 5], [5, 6], [6, 4]]
+    ids, ends, found = run([2, 3])  # too little room for part 0: counted, not written
+    assert found.tolist() == [5, 3]
+    assert ends[:2].tolist() == [[0, 1], [1, 2]]
+    assert ends[2:].tolist() == [[4, 5], [5, 6], [6, 4]]

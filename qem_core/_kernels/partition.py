@@ -4,6 +4,7 @@ import numba
 import numpy as np
 
 from .link import PART_FROZEN
+from .memory import prefetch
 
 
 def _part_edges(faces, face_alive, face_edge, part, n_edge_ids, region_start, region_end,
@@ -104,6 +105,10 @@ def _faces_by_lowest_corner(faces, rank, face_order, renumbered):
 faces_by_lowest_corner = numba.njit(cache=True)(_faces_by_lowest_corner)
 
 
+# How many faces (edges) ahead `renumber_edges` asks for the rows it will read.
+RENUMBER_AHEAD = 8
+
+
 def _renumber_edges(face_edge, face_order, edges, edge_face_count, rank, new_face_edge,
                     new_edges, new_face_count, new_side):
     """The edges of a mesh renumbered by `faces_by_lowest_corner`: numbered in order of
@@ -112,7 +117,16 @@ def _renumber_edges(face_edge, face_order, edges, edge_face_count, rank, new_fac
     3 f + k on each. The outputs are shaped like prepare.MeshEdges'."""
     new_id = np.full(edges.shape[0], -1, np.int64)
     n_edges = 0
-    for i in range(face_order.shape[0]):
+    n_faces = face_order.shape[0]
+    for i in range(n_faces):
+        # The old faces and edges are met in z-order, all over their arrays: ask ahead
+        # for a face's edges, then for their new ids (RENUMBER_AHEAD faces apart).
+        if i + 2 * RENUMBER_AHEAD < n_faces:
+            prefetch(face_edge, face_order[i + 2 * RENUMBER_AHEAD], 0)
+        if i + RENUMBER_AHEAD < n_faces:
+            ahead = face_order[i + RENUMBER_AHEAD]
+            for k in range(3):
+                prefetch(new_id, face_edge[ahead, k], 0)
         f = face_order[i]
         for k in range(3):
             old = face_edge[f, k]
@@ -124,6 +138,10 @@ def _renumber_edges(face_edge, face_order, edges, edge_face_count, rank, new_fac
             new_face_edge[i, k] = e
             new_side[e] = 3 * i + k
     for old in range(edges.shape[0]):
+        if old + RENUMBER_AHEAD < edges.shape[0]:
+            prefetch(new_edges, new_id[old + RENUMBER_AHEAD], 0)
+            prefetch(rank, edges[old + RENUMBER_AHEAD, 0], 0)
+            prefetch(rank, edges[old + RENUMBER_AHEAD, 1], 0)
         e = new_id[old]
         a, b = rank[edges[old, 0]], rank[edges[old, 1]]
         new_edges[e, 0] = min(a, b)

@@ -8,7 +8,25 @@ before the contraction loop starts.
 import numba
 import numpy as np
 
+from .memory import prefetch
+
 LOW_32_BITS = (1 << 32) - 1
+
+
+def _row_hash(rows, i):
+    """splitmix64-style mixing of the columns of row i."""
+    key = np.uint64(0)
+    for c in range(rows.shape[1]):
+        key = (key ^ rows[i, c]) * np.uint64(0x9E3779B97F4A7C15)
+        key ^= key >> np.uint64(29)
+    return key
+
+
+row_hash = numba.njit(cache=True, inline="always")(_row_hash)
+
+# Rows ahead of the one placed whose table slot `first_equal_rows` asks the cache for:
+# the table is far larger than the cache and each probe would wait for memory otherwise.
+PROBE_AHEAD = 16
 
 
 def _first_equal_rows(rows, first):
@@ -17,18 +35,16 @@ def _first_equal_rows(rows, first):
     rows : (r, c) uint64; first : (r,) int64, out. An open-addressing hash table of row
     indices, probed linearly: a hash collision costs a comparison, never a wrong answer.
     """
-    n_rows, n_columns = rows.shape
+    n_rows = rows.shape[0]
     size = 1
     while size < 2 * n_rows:
         size *= 2
     mask = np.uint64(size - 1)
     table = np.full(size, -1, np.int64)
     for i in range(n_rows):
-        key = np.uint64(0)
-        for c in range(n_columns):  # splitmix64-style mixing of the columns
-            key = (key ^ rows[i, c]) * np.uint64(0x9E3779B97F4A7C15)
-            key ^= key >> np.uint64(29)
-        slot = key & mask
+        if i + PROBE_AHEAD < n_rows:
+            prefetch(table, np.int64(row_hash(rows, i + PROBE_AHEAD) & mask), 0)
+        slot = row_hash(rows, i) & mask
         while True:
             j = table[slot]
             if j < 0:
@@ -36,7 +52,7 @@ def _first_equal_rows(rows, first):
                 first[i] = i
                 break
             same = True
-            for c in range(n_columns):
+            for c in range(rows.shape[1]):
                 if rows[j, c] != rows[i, c]:
                     same = False
                     break

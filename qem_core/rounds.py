@@ -19,8 +19,7 @@ The parts' records are then merged by cost (`record.append_merged`), so the sequ
 the greedy one except for the band's candidates below the stop cost, which wait for the
 next round. That round cuts along another axis, so the band is inside a part again.
 Rounds go on while more than ``PARALLEL_MIN_VERTICES`` vertices are live; the serial loop
-does the rest, on a dense copy of what is live (`live_complex`, told back by
-`tell_back`). The build runs on the mesh renumbered in z-order (`spatial_order`), so each
+does the rest. The build runs on the mesh renumbered in z-order (`spatial_order`), so each
 part lies in long runs of every array, and tells its record in the input's numbers
 afterwards (`in_input_order`).
 
@@ -72,10 +71,8 @@ __all__ = [
     "ROUND_PARTS",
     "contract_in_rounds",
     "in_input_order",
-    "live_complex",
     "edges_by_part",
     "spatial_order",
-    "tell_back",
 ]
 
 ROUND_PARTS = 2
@@ -173,62 +170,6 @@ def in_input_order(run_record: Record, cx: Complex, vertex_order: np.ndarray,
     working = ("vertex_quadrics", "vertex_refused", "face_normals", "face_quadrics",
                "face_edge", "edge_quadrics", "face_wedges")
     return run_record, cx._replace(**{name: left_out(getattr(cx, name)) for name in working})
-
-
-def live_complex(cx: Complex) -> tuple[Complex, np.ndarray, np.ndarray]:
-    """The live part of ``cx``, its vertices, faces and edges numbered densely in their
-    order: (that complex, the number in ``cx`` of each of its vertices, of each face).
-
-    After the rounds a seventh of the dragon's vertices are live, one row in a dozen of
-    arrays sized for the whole input: the serial loop that follows runs on this copy,
-    whose rows share cache lines and pages. The numbering keeps the order, so the loop's
-    ties (broken by vertex number) and its face lists (in face order) go as on ``cx``:
-    the same contractions (`tell_back` writes them in cx's numbers). Only a complex of
-    geometry alone (no wedges) is compacted, as rounds build."""
-    vertex_ids = np.flatnonzero(cx.vertex_alive)
-    face_ids = np.flatnonzero(cx.face_alive)
-    vertex_number = np.full(cx.vertices.shape[0], -1, np.int32)
-    vertex_number[vertex_ids] = np.arange(vertex_ids.size, dtype=np.int32)
-    face_edge = cx.face_edge[face_ids]
-    edge_used = np.zeros(int(cx.face_edge.max()) + 1 if cx.face_edge.size else 0, bool)
-    edge_used[face_edge] = True
-    edge_ids = np.flatnonzero(edge_used)
-    edge_number = np.full(edge_used.size, -1, np.int32)
-    edge_number[edge_ids] = np.arange(edge_ids.size, dtype=np.int32)
-    exact = cx.edge_quadrics.shape[0] > 0
-    live = Complex(
-        vertices=cx.vertices[vertex_ids],
-        vertex_quadrics=cx.vertex_quadrics[vertex_ids],
-        vertex_alive=np.ones(vertex_ids.size, np.uint8),
-        vertex_refused=cx.vertex_refused[vertex_ids],
-        faces=vertex_number[cx.faces[face_ids]],
-        face_alive=np.ones(face_ids.size, np.uint8),
-        face_normals=cx.face_normals[face_ids],
-        face_quadrics=cx.face_quadrics[face_ids] if exact else cx.face_quadrics,
-        face_edge=edge_number[face_edge],
-        edge_quadrics=cx.edge_quadrics[edge_ids] if exact else cx.edge_quadrics,
-        face_wedges=cx.face_wedges,
-        wedge_quadrics=cx.wedge_quadrics,
-        wedge_values=cx.wedge_values,
-    )
-    return live, vertex_ids, face_ids
-
-
-def tell_back(live: Complex, vertex_ids: np.ndarray, face_ids: np.ndarray, cx: Complex,
-              record: Record, since: np.ndarray) -> None:
-    """The contractions recorded on ``live`` (`live_complex`) after the record's
-    ``counts`` were ``since``, told in cx's numbers, and live's mesh written back into cx
-    (its positions, faces and what is alive: all that is read of cx after the loop)."""
-    j0, killed0, relabel0 = (int(c) for c in since[:3])
-    j, killed, relabel = (int(c) for c in record.counts[:3])
-    renumber_ids(vertex_ids, record.a[j0:j])
-    renumber_ids(vertex_ids, record.b[j0:j])
-    renumber_ids(face_ids, record.killed[killed0:killed])
-    renumber_ids(face_ids, record.relabel[relabel0:relabel])
-    cx.vertices[vertex_ids] = live.vertices
-    cx.vertex_alive[vertex_ids] = live.vertex_alive
-    cx.faces[face_ids] = vertex_ids[live.faces]
-    cx.face_alive[face_ids] = live.face_alive
 
 
 def edges_by_part(cx: Complex, part: np.ndarray, faces_in_part: np.ndarray

@@ -63,14 +63,7 @@ from .page_advice import without_huge_page_advice
 from .prepare import MeshEdges, prepare_mesh_and_edges, unique_edges
 from .progressive import ProgressiveMesh
 from .record import grown, make_record, with_room_for
-from .rounds import (
-    contract_in_rounds,
-    edges_by_part,
-    in_input_order,
-    live_complex,
-    spatial_order,
-    tell_back,
-)
+from .rounds import contract_in_rounds, edges_by_part, in_input_order, spatial_order
 
 __all__ = [
     "ContractionRun",
@@ -300,31 +293,24 @@ def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
             progress(min(1.0, done / max(1, n - 4)))
 
     done = 0
-    work = cx  # the complex the serial loop runs on
     if in_rounds:
         record, done = contract_in_rounds(cx, hood, pairs, record, params,
                                           lambda: _make_scratch(cx, options, None), chunk,
                                           report)
-        if done:
-            # The rest on a dense copy of what is live (rounds.live_complex); no pairs.
-            work, vertex_ids, face_ids = live_complex(cx)
-            hood = make_neighbourhood(work.vertices.shape[0])
-            since = record.counts.copy()
-    n_work, m_work = work.vertices.shape[0], work.faces.shape[0]
-    lists = make_face_lists(work.faces, n_work, capacity=6 * m_work + 1024,
-                            alive=work.face_alive)
+    lists = make_face_lists(cx.faces, n, capacity=6 * m + 1024, alive=cx.face_alive)
     # Candidates: the edges, then the pairs; their ids are the heap's ids.
     candidates = np.concatenate([edges, pairs.ends]) if pairs.ends.size else edges
+    heap = make_heap(candidates.shape[0])
     exact = options.error_mode == "exact"
-    if done:
-        [(ids, candidates)] = edges_by_part(work, hood.part, np.array([m_work]))  # all live
-        heap = make_heap(int(work.face_edge.max()) + 1 if m_work else 0)
-    else:
-        ids = np.arange(candidates.shape[0], dtype=np.int64)
-        heap = make_heap(candidates.shape[0])
     if _costs_are_geometric(options, wedges):
-        fill_heap(work.vertices, work.vertex_quadrics, work.edge_quadrics, candidates, ids,
-                  exact, RANK_TOLERANCE, heap.entries, heap.position, heap.size, True)
+        if done:
+            # All in part 0, every live face.
+            [(ids, candidates)] = edges_by_part(
+                cx, hood.part, np.array([np.count_nonzero(cx.face_alive)]))
+        else:
+            ids = np.arange(candidates.shape[0], dtype=np.int64)
+        fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, candidates, ids, exact,
+                  RANK_TOLERANCE, heap.entries, heap.position, heap.size, True)
     else:
         fill_costs(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, candidates, exact,
                    RANK_TOLERANCE, cx.faces, cx.face_alive, lists.start, lists.count,
@@ -334,8 +320,7 @@ def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
     while done < budget:
         restart_generations(hood)
         status, steps = run_contractions(
-            work, lists, pairs, hood, heap, record, params, min(chunk, budget - done),
-            scratch,
+            cx, lists, pairs, hood, heap, record, params, min(chunk, budget - done), scratch,
         )
         done += steps
         if status == STATUS_EXHAUSTED:
@@ -343,7 +328,7 @@ def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
         if status in (STATUS_NEED_RELABEL_SPACE, STATUS_NEED_WEDGE_SPACE):
             record = with_room_for(record, status)
         elif status == STATUS_NEED_POOL_SPACE:
-            compact(lists.start, lists.count, lists.pool, lists.used, work.vertex_alive)
+            compact(lists.start, lists.count, lists.pool, lists.used, cx.vertex_alive)
             lists = lists._replace(pool=grown(lists.pool, -1))
         elif status == STATUS_NEED_PAIR_POOL_SPACE:
             compact(pairs.start, pairs.count, pairs.pool, pairs.used, cx.vertex_alive)
@@ -351,8 +336,6 @@ def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
         else:
             assert status == STATUS_STEPS_DONE, status
         report(done)
-    if work is not cx:
-        tell_back(work, vertex_ids, face_ids, cx, record, since)
     return ContractionRun(record, cx, done)
 
 

@@ -272,18 +272,3 @@ def test_part_edges_writes_within_each_region_and_counts_all():
     assert found.tolist() == [5, 3]
     assert ends[:2].tolist() == [[0, 1], [1, 2]]
     assert ends[2:].tolist() == [[4, 5], [5, 6], [6, 4]]
-
-
-def test_the_loop_after_the_rounds_contracts_the_same_on_the_dense_copy(small_rounds,
-                                                                        monkeypatch):
-    """rounds.live_complex numbers what is live densely, in order: the serial loop makes
-    the same contractions there as on the whole complex, told back in its numbers."""
-    vertices, faces = perforated_icosphere(4, seed=8)
-    dense = qem_core.build(vertices, faces)
-
-    def whole(cx):
-        return cx, np.arange(cx.vertices.shape[0]), np.arange(cx.faces.shape[0])
-
-    monkeypatch.setattr("qem_core.simplify.live_complex", whole)
-    assert same_levels(dense, qem_core.build(vertices, faces))
-    assert len(small_rounds) == 2 and small_rounds[0] > 0

@@ -155,8 +155,8 @@ renumber_edges = numba.njit(cache=True)(_renumber_edges)
 def _renumber_ids(order, ids):
     """ids[i] <- order[ids[i]] in place, where ids[i] >= 0 (-1: none, kept). ids: a flat
     int32 array (a record's vertex or face ids, or faces.reshape(-1)). One pass: numpy's
-    where / maximum / gather took ~40 ms for the dragon's record and faces. Each id is its
-    own: the threads share the ids."""
+    where / maximum / gather took ~40 ms for the dragon's record and faces. Each id is
+    renumbered on its own, so the threads split them."""
     for i in numba.prange(ids.shape[0]):
         v = ids[i]
         if v >= 0:

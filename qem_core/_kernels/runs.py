@@ -37,7 +37,8 @@ def _merge_by_running_max(costs, part_ends, order):
     the part whose running maximum (its costs so far, the head's included) is smallest,
     ties to the lower part. The same order as a stable sort of the running maxima by
     (value, part), NaN after every number as numpy sorts it, in one pass: a round's
-    parts are each in cost order already, and np.lexsort took ~30 ms of a dragon build.
+    parts are each in cost order already (np.lexsort and its keys took ~10 ms of a
+    dragon build's 42 ms of merging).
     """
     n_parts = part_ends.shape[0]
     head = np.empty(n_parts, np.int64)

@@ -8,6 +8,7 @@ at the real threshold in test_shared_meshes.py).
 import threading
 import time
 
+import numba
 import numpy as np
 import pytest
 from hypothesis import given
@@ -158,7 +159,12 @@ def test_the_levels_do_not_depend_on_the_number_of_cores(small_rounds, monkeypat
     vertices, faces = icosphere(4, jitter=0.1, seed=1)
     on_two = qem_core.build(vertices, faces, {"error_mode": "exact"})
     monkeypatch.setattr(rounds.os, "cpu_count", lambda: 1)
-    on_one = qem_core.build(vertices, faces, {"error_mode": "exact"})
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)  # the parallel kernels too (their chunks: memory.sort_chunks)
+    try:
+        on_one = qem_core.build(vertices, faces, {"error_mode": "exact"})
+    finally:
+        numba.set_num_threads(threads)
     assert same_levels(on_two, on_one)
     assert len(small_rounds) == 2
 

@@ -21,7 +21,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._kernels.memory import sort_chunks
+from ._kernels.adjacency import sort_chunks
 from ._kernels.topology import (
     count_components,
     find_edges,

@@ -16,8 +16,6 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from .memory import sort_chunks
-
 
 def _corner_of(faces, f, v):
     """Which corner (0, 1, 2) of face f is vertex v (v must be one)."""
@@ -35,11 +33,53 @@ def _has_corner(faces, f, v):
 has_corner = numba.njit(cache=True, inline="always")(_has_corner)
 
 
+def _opposite(faces, f, a, b):
+    """The third corner x of face f if f is a face abx (f has corner a), else -1."""
+    c0, c1, c2 = faces[f, 0], faces[f, 1], faces[f, 2]
+    if c0 != b and c1 != b and c2 != b:
+        return -1
+    return c0 + c1 + c2 - a - b
+
+
+opposite = numba.njit(cache=True, inline="always")(_opposite)
+
+
 class FaceLists(NamedTuple):
     start: np.ndarray  # (n,) int64
     count: np.ndarray  # (n,) int32
     pool: np.ndarray  # (capacity,) int32
     used: np.ndarray  # (1,) int64
+
+
+# At most this many chunks in a parallel counting sort (`sort_chunks`): each chunk holds a
+# row of offsets, one per key, so memory, not speed, bounds them.
+MAX_SORT_CHUNKS = 8
+
+
+def sort_chunks() -> int:
+    """How many chunks a parallel counting sort (`fill_face_lists`, topology.find_edges)
+    splits its items into: one per numba thread, at most MAX_SORT_CHUNKS. Their results
+    do not depend on it."""
+    return max(1, min(numba.get_num_threads(), MAX_SORT_CHUNKS))
+
+
+def _chunk_starts(offset, start):
+    """The middle step of a counting sort in chunks: ``offset`` (chunks, keys) holds how
+    many items each chunk has of each key, and becomes where those items start (after
+    the items of every lower key, then after the earlier chunks' items of the same key);
+    start[key] (at least ``keys`` long) receives where the key's items start. Returns
+    the number of items."""
+    used = 0
+    for key in range(offset.shape[1]):
+        start[key] = used
+        for chunk in range(offset.shape[0]):
+            items = offset[chunk, key]
+            offset[chunk, key] = used
+            used += items
+    return used
+
+
+chunk_starts = numba.njit(cache=True)(_chunk_starts)
 
 
 def make_face_lists(faces: np.ndarray, n_vertices: int, capacity: int,
@@ -74,14 +114,9 @@ def _fill_face_lists(faces, alive, start, count, pool, n_chunks):
             if alive[f]:
                 for k in range(n_corners):
                     offset[chunk, faces[f, k]] += 1
-    used = 0
+    used = chunk_starts(offset, start)
     for v in range(n_vertices):
-        start[v] = used
-        for chunk in range(n_chunks):
-            items = offset[chunk, v]
-            offset[chunk, v] = used
-            used += items
-        count[v] = used - start[v]
+        count[v] = (start[v + 1] if v + 1 < n_vertices else used) - start[v]
     for chunk in numba.prange(n_chunks):
         for f in range(chunk * n_items // n_chunks, (chunk + 1) * n_items // n_chunks):
             if alive[f]:

@@ -43,7 +43,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from .adjacency import compact, corner_of
+from .adjacency import compact, corner_of, opposite
 from .appearance import (
     SETTING_UV_OFFSET,
     candidate_cost,
@@ -189,11 +189,9 @@ def _prefetch_opposites(faces, start, count, pool, near, heap_entries, heap_posi
     Call after `link.gather` (near[x, NEAR_EDGE_B] is edge b-x)."""
     s = start[a]
     for i in range(count[a]):
-        f = pool[s + i]
-        c0, c1, c2 = faces[f, 0], faces[f, 1], faces[f, 2]
-        if c0 != b and c1 != b and c2 != b:
+        x = opposite(faces, pool[s + i], a, b)
+        if x < 0:
             continue
-        x = c0 + c1 + c2 - a - b
         if stage == 0:
             prefetch(start, x, 0)
             prefetch(count, x, 0)
@@ -327,10 +325,10 @@ def _merge_edges(faces, face_edge, face_quadrics, edge_quadrics, start, count, p
     s = start[a]
     for i in range(count[a]):
         f = pool[s + i]
-        c0, c1, c2 = faces[f, 0], faces[f, 1], faces[f, 2]
-        if c0 != b and c1 != b and c2 != b:
+        x = opposite(faces, f, a, b)
+        if x < 0:
             continue
-        row_ax = near[c0 + c1 + c2 - a - b, NEAR_EDGE_A]
+        row_ax = near[x, NEAR_EDGE_A]
         for d in range(QUADRIC_SIZE):
             edge_quadrics[row_ax, d] -= face_quadrics[f, d]
 
@@ -361,12 +359,12 @@ def _rewrite_faces(faces, face_alive, start, count, pool, used, a, b, killed, n_
     s = start[a]
     for i in range(count[a]):
         f = pool[s + i]
-        c0, c1, c2 = faces[f, 0], faces[f, 1], faces[f, 2]
-        if c0 == b or c1 == b or c2 == b:
+        x = opposite(faces, f, a, b)
+        if x >= 0:
             face_alive[f] = 0
             killed[n_killed] = f
             n_killed += 1
-            remove_from_run(start, count, pool, c0 + c1 + c2 - a - b, f)
+            remove_from_run(start, count, pool, x, f)
             continue
         pool[out] = f
         out += 1

@@ -12,7 +12,7 @@ uses all of its vertices.
 import numba
 import numpy as np
 
-from .adjacency import has_corner
+from .adjacency import has_corner, opposite
 from .link import NEAR_COUNT_A
 from .memory import borrowing_kernel
 
@@ -78,20 +78,16 @@ def _leaves_a_vertex_bare(faces, start, count, pool, near, a, b):
     n_dying = 0
     s = start[a]
     for i in range(count[a]):
-        f = pool[s + i]
-        c0, c1, c2 = faces[f, 0], faces[f, 1], faces[f, 2]
-        if c0 != b and c1 != b and c2 != b:
+        x = opposite(faces, pool[s + i], a, b)
+        if x < 0:
             continue
         n_dying += 1
-        x = c0 + c1 + c2 - a - b
         if count[x] > near[x, NEAR_COUNT_A]:
             continue  # x has a face without a, which survives (the usual case)
         dying_at_x = 0
         for j in range(count[a]):
             h = pool[s + j]
-            if (faces[h, 0] == x or faces[h, 1] == x or faces[h, 2] == x) and (
-                faces[h, 0] == b or faces[h, 1] == b or faces[h, 2] == b
-            ):
+            if has_corner(faces, h, x) and has_corner(faces, h, b):
                 dying_at_x += 1
         if dying_at_x == count[x]:
             return True

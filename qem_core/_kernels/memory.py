@@ -30,17 +30,6 @@ from llvmlite import ir
 from numba.core import cgutils, types
 from numba.extending import intrinsic
 
-# At most this many chunks in a parallel counting sort (`sort_chunks`): each chunk holds a
-# row of offsets, one per key, so memory, not speed, bounds them.
-MAX_SORT_CHUNKS = 8
-
-
-def sort_chunks() -> int:
-    """How many chunks a parallel counting sort (adjacency.fill_face_lists,
-    topology.find_edges) splits its items into: one per numba thread, at most
-    MAX_SORT_CHUNKS. Their results do not depend on it."""
-    return max(1, min(numba.get_num_threads(), MAX_SORT_CHUNKS))
-
 
 def borrowing_kernel(function, nogil=False):
     """``numba.njit(cache=True)`` without reference counting (see the module docstring).

@@ -8,6 +8,7 @@ before the contraction loop starts.
 import numba
 import numpy as np
 
+from .adjacency import chunk_starts
 from .memory import prefetch
 
 LOW_32_BITS = (1 << 32) - 1
@@ -105,14 +106,7 @@ def _find_edges(faces, n_vertices, face_edge, edges, edge_face_count, edge_side,
             for k in range(3):
                 offset[chunk, min(faces[f, k], faces[f, (k + 1) % 3])] += 1
     bucket = np.zeros(n_vertices + 1, np.int64)
-    total = 0
-    for v in range(n_vertices):
-        bucket[v] = total
-        for chunk in range(n_chunks):
-            sides = offset[chunk, v]
-            offset[chunk, v] = total
-            total += sides
-    bucket[n_vertices] = total
+    bucket[n_vertices] = chunk_starts(offset, bucket)
     high_and_side = np.empty(3 * n_faces, np.int64)  # every element written
     for chunk in numba.prange(n_chunks):
         for f in range(chunk * n_faces // n_chunks, (chunk + 1) * n_faces // n_chunks):

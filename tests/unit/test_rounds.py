@@ -160,7 +160,7 @@ def test_the_levels_do_not_depend_on_the_number_of_cores(small_rounds, monkeypat
     on_two = qem_core.build(vertices, faces, {"error_mode": "exact"})
     monkeypatch.setattr(rounds.os, "cpu_count", lambda: 1)
     threads = numba.get_num_threads()
-    numba.set_num_threads(1)  # the parallel kernels too (their chunks: memory.sort_chunks)
+    numba.set_num_threads(1)  # the parallel kernels too (their chunks: adjacency.sort_chunks)
     try:
         on_one = qem_core.build(vertices, faces, {"error_mode": "exact"})
     finally:

@@ -172,14 +172,13 @@ def in_input_order(run_record: Record, cx: Complex, vertex_order: np.ndarray,
     return run_record, cx._replace(**{name: left_out(getattr(cx, name)) for name in working})
 
 
-def edges_by_part(cx: Complex, part: np.ndarray, faces_in_part: np.ndarray
-                  ) -> list[tuple[np.ndarray, np.ndarray]]:
+def edges_by_part(cx: Complex, part: np.ndarray, faces_in_part: np.ndarray,
+                  n_edge_ids: int) -> list[tuple[np.ndarray, np.ndarray]]:
     """For each part p < faces_in_part.size, (ids (E_p,) int64, ends (E_p, 2) int32) of the
     edges of the live faces with both ends in p (``part`` as `Neighbourhood.part`).
     faces_in_part : the live faces with all corners in each part (or more): their three
     sides each are the room for its edges, so they are found in one pass, not counted
-    first."""
-    n_edge_ids = int(cx.face_edge.max()) + 1 if cx.face_edge.size else 0
+    first. n_edge_ids: more than any edge id of ``cx``."""
     room = 3 * faces_in_part.astype(np.int64)
     region_start = np.concatenate([[0], np.cumsum(room)[:-1]])
     ids = np.empty(int(room.sum()), np.int64)
@@ -294,6 +293,8 @@ def contract_in_rounds(cx: Complex, hood: Neighbourhood, pairs: Pairs, record: R
     low, high = bounding_box(cx.vertices, cx.vertex_alive)
     sides = high - low
     axes = np.argsort(-sides, kind="stable")
+    # A contraction never makes an edge id: the first round's bound holds for them all.
+    n_edge_ids = int(cx.face_edge.max()) + 1 if cx.face_edge.size else 0
     with ThreadPoolExecutor(workers) as executor:
         for round_index in range(MAX_ROUNDS):
             n_live = int(np.count_nonzero(cx.vertex_alive))
@@ -301,7 +302,7 @@ def contract_in_rounds(cx: Complex, hood: Neighbourhood, pairs: Pairs, record: R
                 break
             restart_generations(hood)
             loops = _start_round(executor, cx, hood, pairs, params, make_scratch,
-                                 int(axes[round_index % 3]))
+                                 int(axes[round_index % 3]), n_edge_ids)
             if loops is None:
                 break
             round_done = _run_loops(executor, loops, chunk,
@@ -316,9 +317,10 @@ def contract_in_rounds(cx: Complex, hood: Neighbourhood, pairs: Pairs, record: R
 
 
 def _start_round(executor: ThreadPoolExecutor, cx: Complex, hood: Neighbourhood, pairs: Pairs,
-                 params: np.ndarray, make_scratch: Callable[[], Scratch],
-                 axis: int) -> list[_PartLoop] | None:
-    """Cut the complex and set up one loop per part; None if no part has a candidate."""
+                 params: np.ndarray, make_scratch: Callable[[], Scratch], axis: int,
+                 n_edge_ids: int) -> list[_PartLoop] | None:
+    """Cut the complex and set up one loop per part; None if no part has a candidate.
+    n_edge_ids: more than any edge id of ``cx``."""
     n = cx.vertices.shape[0]
     vertices_in_part, faces_in_part = _cut(cx, hood.part, axis)
     # One pool: the runs of the live faces, then a region per part for the runs its
@@ -328,9 +330,9 @@ def _start_round(executor: ThreadPoolExecutor, cx: Complex, hood: Neighbourhood,
     room = [POOL_ROOM_PER_VERTEX * int(vertices_in_part[p]) + 1024 for p in range(ROUND_PARTS)]
     used = 3 * int(np.count_nonzero(cx.face_alive))
     lists = make_face_lists(cx.faces, n, capacity=used + sum(room), alive=cx.face_alive)
-    position = np.full(cx.face_edge.max() + 1, -1, np.int32)  # shared: ids are disjoint
+    position = np.full(n_edge_ids, -1, np.int32)  # shared: ids are disjoint
     heaps = []
-    for ids, ends in edges_by_part(cx, hood.part, faces_in_part[:ROUND_PARTS]):
+    for ids, ends in edges_by_part(cx, hood.part, faces_in_part[:ROUND_PARTS], n_edge_ids):
         # Rows 0..ids.size - 1 are all written: no zeros.
         heap = Heap(np.empty((max(ids.size, 1), 3), np.int64), position, np.zeros(1, np.int64))
         fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, ends, ids,

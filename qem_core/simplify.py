@@ -306,7 +306,7 @@ def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
         if done:
             # All in part 0, every live face.
             [(ids, candidates)] = edges_by_part(
-                cx, hood.part, np.array([np.count_nonzero(cx.face_alive)]))
+                cx, hood.part, np.array([np.count_nonzero(cx.face_alive)]), edges.shape[0])
         else:
             ids = np.arange(candidates.shape[0], dtype=np.int64)
         fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, candidates, ids, exact,

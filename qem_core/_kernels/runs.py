@@ -29,6 +29,51 @@ def _gather_runs(values, ends, order, out):
 gather_runs = numba.njit(cache=True)(_gather_runs)
 
 
+def _taken_before(key, p, q):
+    """Whether part p's head is taken before part q's: by key, NaN after every number,
+    ties to the lower part."""
+    kp, kq = key[p], key[q]
+    if kp != kp:
+        return kq != kq and p < q
+    if kq != kq:
+        return True
+    return kp < kq or (kp == kq and p < q)
+
+
+taken_before = numba.njit(cache=True, inline="always")(_taken_before)
+
+
+def _sift_part_down(heap, size, key):
+    """Move heap[0] down to its place in the binary heap heap[:size] of parts."""
+    i = 0
+    while True:
+        child = 2 * i + 1
+        if child >= size:
+            return
+        if child + 1 < size and taken_before(key, heap[child + 1], heap[child]):
+            child += 1
+        if not taken_before(key, heap[child], heap[i]):
+            return
+        heap[i], heap[child] = heap[child], heap[i]
+        i = child
+
+
+sift_part_down = numba.njit(cache=True, inline="always")(_sift_part_down)
+
+
+def _head_key(costs, h, running):
+    """The running maximum of a part once its row h is taken: NaN stays NaN."""
+    value = costs[h]
+    if running != running:
+        return running
+    if value <= running:
+        return running
+    return value  # larger, or NaN
+
+
+head_key = numba.njit(cache=True, inline="always")(_head_key)
+
+
 def _merge_by_running_max(costs, part_ends, order):
     """order (N,) out: the rows of ``costs`` merged part by part on running maxima.
 
@@ -38,32 +83,40 @@ def _merge_by_running_max(costs, part_ends, order):
     ties to the lower part. The same order as a stable sort of the running maxima by
     (value, part), NaN after every number as numpy sorts it, in one pass: a round's
     parts are each in cost order already (np.lexsort and its keys took ~10 ms of a
-    dragon build's 42 ms of merging).
+    dragon build's 42 ms of merging). The parts' heads are kept in a binary heap: a
+    round has dozens of parts (rounds.py), and a scan of them all for every row took
+    longer than the rest of the merge.
     """
     n_parts = part_ends.shape[0]
     head = np.empty(n_parts, np.int64)
-    running = np.full(n_parts, -np.inf)
+    key = np.empty(n_parts)  # each part's running maximum once its head is taken
+    heap = np.empty(n_parts, np.int64)
+    size = 0
     for p in range(n_parts):
         head[p] = part_ends[p - 1] if p > 0 else 0
+        if head[p] == part_ends[p]:
+            continue
+        key[p] = head_key(costs, head[p], -np.inf)
+        # Sift the new part up.
+        i = size
+        heap[i] = p
+        size += 1
+        while i > 0:
+            parent = (i - 1) // 2
+            if not taken_before(key, heap[i], heap[parent]):
+                break
+            heap[i], heap[parent] = heap[parent], heap[i]
+            i = parent
     for i in range(order.shape[0]):
-        best = -1
-        best_value = 0.0
-        for p in range(n_parts):
-            h = head[p]
-            if h == part_ends[p]:
-                continue
-            value = costs[h]
-            if running[p] != running[p]:
-                value = running[p]  # NaN stays
-            elif value <= running[p]:
-                value = running[p]  # else the head's cost (larger, or NaN) is the maximum
-            # Strictly less, NaN last: ties keep the lower part.
-            if best < 0 or (value == value and (best_value != best_value or value < best_value)):
-                best = p
-                best_value = value
-        order[i] = head[best]
-        head[best] += 1
-        running[best] = best_value
+        p = heap[0]
+        order[i] = head[p]
+        head[p] += 1
+        if head[p] < part_ends[p]:
+            key[p] = head_key(costs, head[p], key[p])
+        else:
+            size -= 1
+            heap[0] = heap[size]
+        sift_part_down(heap, size, key)
 
 
 merge_by_running_max = numba.njit(cache=True)(_merge_by_running_max)

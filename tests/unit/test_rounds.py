@@ -98,7 +98,7 @@ COSTS = st.one_of(st.sampled_from([0.0, -0.0, 1.0, 2.0, np.inf, np.nan]),
                   st.floats(0.0, 4.0, allow_nan=False))
 
 
-@given(st.lists(st.lists(COSTS, max_size=12), min_size=1, max_size=4))
+@given(st.lists(st.lists(COSTS, max_size=12), min_size=1, max_size=12))
 def test_merge_order_is_a_stable_sort_of_the_running_maxima(parts):
     """The one-pass merge against the sort it replaces: the running maxima (NaN stays),
     sorted by (value, part, row), NaN last."""

@@ -2,13 +2,20 @@
 
 The greedy loop is sequential: each contraction changes the costs around it. But two
 contractions far apart change nothing of each other, and a big mesh is mostly far apart.
-A round cuts the live complex into ``ROUND_PARTS`` parts at the median of the live
-vertices along one axis, freezes the band of vertices that have a neighbour in another
-part, and runs one loop per part (`contract.run_contractions`, which releases the GIL) in
-threads, on the same complex: a loop only contracts edges whose two ends are in its part
-and not frozen, so every vertex, face, edge and list it reads or writes belongs to its
-part, and the loops share nothing that changes. Each loop has its own heap, face-list
-pool, generation counter and record.
+A round cuts the live complex into parts, freezes the band of vertices that have a
+neighbour in another part, and runs one loop per part (`contract.run_contractions`,
+which releases the GIL) in threads, on the same complex: a loop only contracts edges
+whose two ends are in its part and not frozen, so every vertex, face, edge and list it
+reads or writes belongs to its part, and the loops share nothing that changes. Each loop
+has its own heap, face-list pool region, generation counter and record.
+
+The parts are runs of about ``PART_VERTICES`` live vertices in index order, which is
+z-order (the build runs on the mesh renumbered by `spatial_order`), so a part is a
+compact piece of the surface and lies in a few runs of every array. That is what the
+size is for: a contraction reads a dozen random rows of its neighbourhood and walks its
+heap, and a part's rows and heap mostly stay in the core's cache while its loop runs,
+where a half of the mesh (two parts for two cores) did not; a core's parts run one after
+another. Smaller parts would freeze more of the mesh in their bands.
 
 Each loop stops before a candidate that costs more than the round's stop cost, the
 ``STOP_QUANTILE`` quantile of the costs of all the round's candidates when it starts, so
@@ -17,11 +24,10 @@ the rows, and no sinking of the edges re-priced above it. A candidate whose full
 (the distance and volume terms, priced at the top) passes the stop cost waits too.
 The parts' records are then merged by cost (`record.append_merged`), so the sequence is
 the greedy one except for the band's candidates below the stop cost, which wait for the
-next round. That round cuts along another axis, so the band is inside a part again.
-Rounds go on while more than ``PARALLEL_MIN_VERTICES`` vertices are live; the serial loop
-does the rest. The build runs on the mesh renumbered in z-order (`spatial_order`), so each
-part lies in long runs of every array, and tells its record in the input's numbers
-afterwards (`in_input_order`).
+next round. That round shifts the runs by half a part, so the band is inside a part
+again. Rounds go on while more than ``PARALLEL_MIN_VERTICES`` vertices are live; the
+serial loop does the rest. The build tells its record in the input's numbers afterwards
+(`in_input_order`).
 
 Deterministic: the cut, the loops and the merge depend on the mesh alone, not on the
 number of threads or their timing. With one core the parts run one after the other and
@@ -68,14 +74,18 @@ from .record import append_merged, make_record, with_room_for
 
 __all__ = [
     "PARALLEL_MIN_VERTICES",
-    "ROUND_PARTS",
+    "PART_VERTICES",
     "contract_in_rounds",
     "in_input_order",
     "edges_by_part",
     "spatial_order",
 ]
 
-ROUND_PARTS = 2
+# Live vertices per part of a round, about (module docstring); measured on dragon, whose
+# loops took 0.63x the time with parts of this size as with two halves of the mesh.
+PART_VERTICES = 16384
+# Part labels are uint8 and PART_FROZEN is the last: at most this many parts a round.
+MAX_PARTS = PART_FROZEN
 # Rounds run while more vertices than this are live (and only for meshes this big):
 # below it a round's set-up (cut, face lists, heaps) costs about what its second thread
 # saves; on dragon, rounds down to 16384 live vertices measured the same as to 65536.
@@ -172,24 +182,25 @@ def in_input_order(run_record: Record, cx: Complex, vertex_order: np.ndarray,
     return run_record, cx._replace(**{name: left_out(getattr(cx, name)) for name in working})
 
 
-def edges_by_part(cx: Complex, part: np.ndarray, faces_in_part: np.ndarray,
-                  n_edge_ids: int) -> list[tuple[np.ndarray, np.ndarray]]:
-    """For each part p < faces_in_part.size, (ids (E_p,) int64, ends (E_p, 2) int32) of the
-    edges of the live faces with both ends in p (``part`` as `Neighbourhood.part`).
+def edges_by_part(cx: Complex, part: np.ndarray, faces_in_part: np.ndarray, n_edge_ids: int
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The edges of the live faces with both ends in one part p < faces_in_part.size
+    (``part`` as `Neighbourhood.part`): (ids (R,) int64, ends (R, 2) int32, run_start,
+    run_end (P,) int64), part p's in rows [run_start[p], run_end[p]) (run_start[0] = 0),
+    the rows between the runs unwritten.
     faces_in_part : the live faces with all corners in each part (or more): their three
     sides each are the room for its edges, so they are found in one pass, not counted
-    first. n_edge_ids: more than any edge id of ``cx``."""
+    first; R is that room. n_edge_ids: more than any edge id of ``cx``."""
     room = 3 * faces_in_part.astype(np.int64)
-    region_start = np.concatenate([[0], np.cumsum(room)[:-1]])
+    run_start = np.concatenate([[0], np.cumsum(room)[:-1]]).astype(np.int64)
     ids = np.empty(int(room.sum()), np.int64)
     ends = np.empty((ids.size, 2), np.int32)
     found = np.zeros(room.size, np.int64)
-    part_edges(cx.faces, cx.face_alive, cx.face_edge, part, n_edge_ids, region_start,
-               region_start + room, ids, ends, found)
+    part_edges(cx.faces, cx.face_alive, cx.face_edge, part, n_edge_ids, run_start,
+               run_start + room, ids, ends, found)
     if np.any(found > room):
         raise RuntimeError(f"edges_by_part: {found.tolist()} edges for room {room.tolist()}")
-    return [(ids[start:start + n], ends[start:start + n])
-            for start, n in zip(region_start.tolist(), found.tolist(), strict=True)]
+    return ids, ends, run_start, run_start + found
 
 
 class _PartLoop:
@@ -249,30 +260,17 @@ def _run_loops(executor: ThreadPoolExecutor, loops: list[_PartLoop], chunk: int,
     return sum(loop.done for loop in loops)
 
 
-def _rank_labels(values: np.ndarray, n_parts: int) -> np.ndarray:
-    """(n,) uint8: the rank of each value (ties by index, as a stable sort ranks them)
-    times n_parts // n, found without sorting: one selection per boundary."""
-    labels = np.zeros(values.size, np.uint8)
-    for p in range(1, n_parts):
-        k = -(-p * values.size // n_parts)  # the first rank r with r * n_parts // n == p
-        if k >= values.size:
-            break
-        boundary = np.partition(values, k)[k]
-        below = values < boundary
-        equal = values == boundary
-        # Of the values equal to the boundary, the first k - (those below) rank below k.
-        equal_below = equal & (np.cumsum(equal) <= k - np.count_nonzero(below))
-        labels += ~(below | equal_below)
-    return labels
-
-
-def _cut(cx: Complex, part: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
-    """Label the live vertices by their rank along ``axis`` into ROUND_PARTS parts of
-    equal size (ties by vertex number), then freeze the band. Returns the number of
-    vertices left in each part and of faces with all corners in it (by part number)."""
+def _cut(cx: Complex, part: np.ndarray, n_parts: int, shift: float
+         ) -> tuple[np.ndarray, np.ndarray]:
+    """Label the live vertices, in index order, into n_parts runs of equal size, the runs
+    moved on by ``shift`` of a run (the last one wraps round to the first vertices), then
+    freeze the band. Returns the number of vertices left in each part and of faces with
+    all corners in it (by part number)."""
     live = np.flatnonzero(cx.vertex_alive)
     part[:] = PART_FROZEN  # dead vertices: in no part
-    part[live] = _rank_labels(cx.vertices[live, axis], ROUND_PARTS)
+    offset = int(shift * live.size) // n_parts
+    rank = np.arange(offset, offset + live.size, dtype=np.int64)
+    part[live] = (rank * n_parts // live.size % n_parts).astype(np.uint8)
     vertices_in_part = np.zeros(PART_FROZEN + 1, np.int64)
     faces_in_part = np.zeros(PART_FROZEN + 1, np.int64)
     freeze_band(cx.faces, cx.face_alive, part, vertices_in_part, faces_in_part)
@@ -288,21 +286,17 @@ def contract_in_rounds(cx: Complex, hood: Neighbourhood, pairs: Pairs, record: R
     is called from this thread while the loops run (`_run_loops`). Leaves ``hood.part``
     all 0."""
     done = 0
-    workers = min(ROUND_PARTS, os.cpu_count() or 1)
-    # Round r cuts across the r-th longest side of the bounding box (cyclically).
-    low, high = bounding_box(cx.vertices, cx.vertex_alive)
-    sides = high - low
-    axes = np.argsort(-sides, kind="stable")
     # A contraction never makes an edge id: the first round's bound holds for them all.
     n_edge_ids = int(cx.face_edge.max()) + 1 if cx.face_edge.size else 0
-    with ThreadPoolExecutor(workers) as executor:
+    with ThreadPoolExecutor(os.cpu_count() or 1) as executor:
         for round_index in range(MAX_ROUNDS):
             n_live = int(np.count_nonzero(cx.vertex_alive))
             if n_live <= PARALLEL_MIN_VERTICES:
                 break
             restart_generations(hood)
-            loops = _start_round(executor, cx, hood, pairs, params, make_scratch,
-                                 int(axes[round_index % 3]), n_edge_ids)
+            n_parts = min(MAX_PARTS, max(2, round(n_live / PART_VERTICES)))
+            loops = _start_round(executor, cx, hood, pairs, params, make_scratch, n_parts,
+                                 0.5 * (round_index % 2), n_edge_ids)
             if loops is None:
                 break
             round_done = _run_loops(executor, loops, chunk,
@@ -317,35 +311,40 @@ def contract_in_rounds(cx: Complex, hood: Neighbourhood, pairs: Pairs, record: R
 
 
 def _start_round(executor: ThreadPoolExecutor, cx: Complex, hood: Neighbourhood, pairs: Pairs,
-                 params: np.ndarray, make_scratch: Callable[[], Scratch], axis: int,
-                 n_edge_ids: int) -> list[_PartLoop] | None:
-    """Cut the complex and set up one loop per part; None if no part has a candidate.
-    n_edge_ids: more than any edge id of ``cx``."""
+                 params: np.ndarray, make_scratch: Callable[[], Scratch], n_parts: int,
+                 shift: float, n_edge_ids: int) -> list[_PartLoop] | None:
+    """Cut the complex (`_cut`) and set up one loop per part; None if no part has a
+    candidate. n_edge_ids: more than any edge id of ``cx``."""
     n = cx.vertices.shape[0]
-    vertices_in_part, faces_in_part = _cut(cx, hood.part, axis)
+    vertices_in_part, faces_in_part = _cut(cx, hood.part, n_parts, shift)
     # One pool: the runs of the live faces, then a region per part for the runs its
     # contractions write. Each loop is handed the pool up to the end of its region and
     # appends from the region's start; of the shared runs below, each changes only its
     # own vertices'.
-    room = [POOL_ROOM_PER_VERTEX * int(vertices_in_part[p]) + 1024 for p in range(ROUND_PARTS)]
+    room = [POOL_ROOM_PER_VERTEX * int(vertices_in_part[p]) + 1024 for p in range(n_parts)]
     used = 3 * int(np.count_nonzero(cx.face_alive))
     lists = make_face_lists(cx.faces, n, capacity=used + sum(room), alive=cx.face_alive)
-    position = np.full(n_edge_ids, -1, np.int32)  # shared: ids are disjoint
-    heaps = []
-    for ids, ends in edges_by_part(cx, hood.part, faces_in_part[:ROUND_PARTS], n_edge_ids):
-        # Rows 0..ids.size - 1 are all written: no zeros.
-        heap = Heap(np.empty((max(ids.size, 1), 3), np.int64), position, np.zeros(1, np.int64))
-        fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, ends, ids,
-                  params[PARAM_EXACT] != 0.0, params[PARAM_RANK_TOLERANCE], heap.entries,
-                  heap.position, heap.size, False)
-        heaps.append(heap)
-    keys = np.concatenate([heap.entries[: heap.size[0], 0] for heap in heaps])
-    if keys.size == 0:
+    # The parts' heaps are runs of one array, each the room of its part's edges (a heap
+    # never holds more: an edge is in it at most once, and a loop adds only edges of its
+    # part), filled at once (in parallel). ``position`` is shared: the ids are disjoint.
+    ids, ends, run_start, run_end = edges_by_part(cx, hood.part, faces_in_part[:n_parts],
+                                                  n_edge_ids)
+    runs = [slice(start, end)
+            for start, end in zip(run_start.tolist(), run_end.tolist(), strict=True)]
+    n_edges = int((run_end - run_start).sum())
+    if n_edges == 0:
         return None
-    k = int(STOP_QUANTILE * (keys.size - 1))
+    entries = np.empty((ids.size, 3), np.int64)  # the runs' rows are written: no zeros
+    position = np.full(n_edge_ids, -1, np.int32)
+    fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, ends, ids, run_start, run_end,
+              params[PARAM_EXACT] != 0.0, params[PARAM_RANK_TOLERANCE], entries)
+    keys = np.concatenate([entries[run, 0] for run in runs])
+    k = int(STOP_QUANTILE * (n_edges - 1))
     stop_key = np.partition(keys, k)[k]
-    # The loops stop before the candidates above the round's cost: those stay out. Each
-    # part's heap in a thread (the kernel releases the GIL; the ids are disjoint).
+    heaps = [Heap(entries[run], position, np.array([run.stop - run.start], np.int64))
+             for run in runs]
+    # The loops stop before the candidates above the round's cost: those stay out. The
+    # heaps are ordered in threads (the kernel releases the GIL; the ids are disjoint).
     list(executor.map(lambda heap: park_above(heap.entries, heap.position, heap.size, stop_key),
                       heaps))
     round_params = params.copy()
@@ -358,8 +357,9 @@ def _start_round(executor: ThreadPoolExecutor, cx: Complex, hood: Neighbourhood,
         region_start, region_end = region_end, region_end + room[p]
         part_lists = FaceLists(lists.start, lists.count, lists.pool[:region_end],
                                np.array([region_start], np.int64))
+        # retry: scratch for the neighbours of one vertex, all in the part.
         part_hood = Neighbourhood(hood.near, hood.generation.copy(),
-                                  np.empty(n + 1, np.int32), hood.part)  # retry: scratch
+                                  np.empty(n_part + 1, np.int32), hood.part)
         # A contraction kills faces of its part only, at most all of them.
         loops.append(_PartLoop(cx, part_lists, pairs, part_hood, heap,
                                make_record(max(n_part, 1), int(faces_in_part[p])),

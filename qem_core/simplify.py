@@ -305,18 +305,20 @@ def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
     if _costs_are_geometric(options, wedges):
         if done:
             # All in part 0, every live face.
-            [(ids, candidates)] = edges_by_part(
+            ids, candidates, run_start, run_end = edges_by_part(
                 cx, hood.part, np.array([np.count_nonzero(cx.face_alive)]), edges.shape[0])
         else:
             ids = np.arange(candidates.shape[0], dtype=np.int64)
-        fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, candidates, ids, exact,
-                  RANK_TOLERANCE, heap.entries, heap.position, heap.size, True)
+            run_start, run_end = np.zeros(1, np.int64), np.array([ids.size], np.int64)
+        fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, candidates, ids, run_start,
+                  run_end, exact, RANK_TOLERANCE, heap.entries)
+        heap.size[0] = run_end[0]  # one run, from row 0
     else:
         fill_costs(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, candidates, exact,
                    RANK_TOLERANCE, cx.faces, cx.face_alive, lists.start, lists.count,
                    lists.pool, _look(cx, scratch), heap.entries)
         heap.size[0] = candidates.shape[0]
-        heapify(heap.entries, heap.position, heap.size)
+    heapify(heap.entries, heap.position, heap.size)
     while done < budget:
         restart_generations(hood)
         status, steps = run_contractions(

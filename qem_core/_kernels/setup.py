@@ -53,33 +53,35 @@ def _fill_border_quadrics(vertices, border_edges, border_faces, face_normals, we
 fill_border_quadrics = numba.njit(cache=True)(_fill_border_quadrics)
 
 
-def _fill_heap(vertices, vertex_quadrics, edge_quadrics, edges, ids, exact, rank_tolerance,
-               heap_entries, heap_position, heap_size, order):
-    """Put every candidate in the heap with its cost, then, if ``order``, order it once
-    (O(E); a round orders its heaps itself, `heap.park_above`).
+def _fill_heap(vertices, vertex_quadrics, edge_quadrics, edges, ids, run_start, run_end,
+               exact, rank_tolerance, heap_entries):
+    """Write the heap row of every candidate in the runs [run_start[r], run_end[r]) of
+    ``edges`` and ``ids``, at the same row of ``heap_entries``, unordered (the caller
+    orders each heap: `heap.heapify`, or `heap.park_above` in a round).
 
     edges : (E, 2) int32 candidates, ids : (E,) int64 their ids (the build's first heap:
-    0..E-1, the edges and then the pairs of pairs.py; a round's heap: the edges of its
-    part, rounds.py).
+    one run of 0..E-1, the edges and then the pairs of pairs.py; a round: a run per
+    part, each the room of its heap, rounds.py). Rows outside the runs are not read.
 
     The costs are independent, so they are computed in parallel, each edge by the same
-    arithmetic as in the loop: the result does not depend on the number of threads.
+    arithmetic as in the loop: the result does not depend on the number of threads. Each
+    chunk takes its share of every run.
     """
-    n_edges = edges.shape[0]
     n_chunks = 256
     for chunk in numba.prange(n_chunks):
         quadric = np.zeros(QUADRIC_SIZE)
         position = np.zeros(3)
-        for e in range(chunk * n_edges // n_chunks, (chunk + 1) * n_edges // n_chunks):
-            a, b, edge = edges[e, 0], edges[e, 1], ids[e]
-            cost = edge_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact,
-                             rank_tolerance, quadric, position)
-            heap_entries[e, 0] = heap_ops.cost_key(cost)
-            heap_entries[e, 1] = heap_ops.pair(a, b)
-            heap_entries[e, 2] = edge
-    heap_size[0] = n_edges
-    if order:
-        heap_ops.heapify(heap_entries, heap_position, heap_size)
+        for r in range(run_start.shape[0]):
+            length = run_end[r] - run_start[r]
+            first = run_start[r] + chunk * length // n_chunks
+            last = run_start[r] + (chunk + 1) * length // n_chunks
+            for e in range(first, last):
+                a, b, edge = edges[e, 0], edges[e, 1], ids[e]
+                cost = edge_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact,
+                                 rank_tolerance, quadric, position)
+                heap_entries[e, 0] = heap_ops.cost_key(cost)
+                heap_entries[e, 1] = heap_ops.pair(a, b)
+                heap_entries[e, 2] = edge
 
 
 fill_heap = numba.njit(cache=True, parallel=True)(_fill_heap)

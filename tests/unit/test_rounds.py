@@ -5,8 +5,10 @@ it so small meshes run several rounds (the shared igea and face_rangemap meshes 
 at the real threshold in test_shared_meshes.py).
 """
 
+import os
 import threading
 import time
+from types import SimpleNamespace
 
 import numba
 import numpy as np
@@ -16,6 +18,7 @@ from hypothesis import strategies as st
 
 import qem_core
 from qem_core import rounds
+from qem_core._kernels.link import PART_FROZEN
 from qem_core._kernels.partition import part_edges, renumber_ids
 from qem_core._kernels.runs import merge_by_running_max
 from qem_core.prepare import unique_edges
@@ -30,8 +33,11 @@ ARRAY_FIELDS = ("base_vertices", "split_vertex", "split_positions", "face_corner
 
 @pytest.fixture
 def small_rounds(monkeypatch):
-    """Rounds down to 200 live vertices; returns a list of (round contractions) calls."""
+    """Rounds down to 200 live vertices, in parts of about 256 (so the first rounds of
+    these meshes, some thousand vertices, have many parts, more than the cores); returns
+    a list of (round contractions) calls."""
     monkeypatch.setattr(rounds, "PARALLEL_MIN_VERTICES", 200)
+    monkeypatch.setattr(rounds, "PART_VERTICES", 256)
     calls = []
     contract = rounds.contract_in_rounds
 
@@ -113,13 +119,39 @@ def test_merge_order_is_a_stable_sort_of_the_running_maxima(parts):
     np.testing.assert_array_equal(order, expected)
 
 
-@given(st.lists(st.integers(0, 4), min_size=1, max_size=60), st.integers(2, 8))
-def test_rank_labels_are_the_ranks_of_a_stable_sort(values, n_parts):
-    values = np.array(values, float)
-    ranks = np.empty(values.size, np.int64)
-    ranks[np.argsort(values, kind="stable")] = np.arange(values.size)
-    expected = ranks * n_parts // values.size
-    np.testing.assert_array_equal(rounds._rank_labels(values, n_parts), expected)
+@given(st.lists(st.booleans(), min_size=3, max_size=80), st.integers(2, 9),
+       st.sampled_from([0.0, 0.5]))
+def test_cut_labels_runs_of_the_live_vertices_and_freezes_the_band(alive, n_parts, shift):
+    """Parts are n_parts runs of equal size of the live vertices in index order, moved on
+    by ``shift`` of a run (the last wraps round); the corners of a live face across two
+    parts are frozen, and so are the dead vertices; the counts are of what is left."""
+    n = len(alive)
+    alive = np.array(alive, np.uint8)
+    live = np.flatnonzero(alive)
+    faces = np.array([[i, (i + 1) % n, (i + 2) % n] for i in range(n)], np.int32)
+    face_alive = alive[faces].all(axis=1).astype(np.uint8)
+    cx = SimpleNamespace(vertex_alive=alive, faces=faces, face_alive=face_alive)
+    part = np.zeros(n, np.uint8)
+    vertices_in_part, faces_in_part = rounds._cut(cx, part, n_parts, shift)
+
+    labels = np.full(n, PART_FROZEN, np.int64)
+    offset = int(shift * live.size) // n_parts
+    labels[live] = (np.arange(live.size) + offset) * n_parts // live.size % n_parts
+    if live.size >= n_parts:
+        sizes = np.bincount(labels[live], minlength=n_parts)
+        assert sizes.max() - sizes.min() <= 1  # runs of equal size
+    expected = labels.copy()
+    within = np.zeros(n_parts, np.int64)
+    for f in np.flatnonzero(face_alive):
+        corner_labels = set(labels[faces[f]].tolist())
+        if len(corner_labels) > 1:
+            expected[faces[f]] = PART_FROZEN
+        else:
+            within[corner_labels.pop()] += 1
+    np.testing.assert_array_equal(part, expected)
+    np.testing.assert_array_equal(vertices_in_part[:n_parts],
+                                  np.bincount(expected, minlength=256)[:n_parts])
+    np.testing.assert_array_equal(faces_in_part[:n_parts], within)
 
 
 @given(st.permutations(range(12)), st.lists(st.integers(-1, 11), max_size=40))
@@ -239,7 +271,7 @@ def test_a_progress_callback_that_raises_stops_the_rounds(small_rounds, monkeypa
     with pytest.raises(Cancelled):
         qem_core.build(vertices, faces, progress=cancel_in_a_round)
     assert len(small_rounds) == rounds_before  # raised inside the rounds: none returned
-    assert 1 <= len(chunks) <= rounds.ROUND_PARTS
+    assert 1 <= len(chunks) <= (os.cpu_count() or 1)  # loops not yet started never run
     monkeypatch.setattr(rounds._PartLoop, "run", run)
     assert same_levels(expected, qem_core.build(vertices, faces))
 

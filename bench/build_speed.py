@@ -74,7 +74,7 @@ STAGES = (
      "spatial_order"),
     ("quadrics of faces, borders and vertices", "qem_core.simplify", "_initial_complex"),
     ("vertex -> face lists", "qem_core.simplify", "make_face_lists"),
-    ("parallel rounds: cuts, heaps, two loops in threads, merges", "qem_core.simplify",
+    ("parallel rounds: cuts, heaps, the parts' loops in threads, merges", "qem_core.simplify",
      "contract_in_rounds"),
     ("costs and heap of the serial loop (parallel)", "qem_core.simplify", "fill_heap"),
     ("serial contraction loop", "qem_core.simplify", "run_contractions"),

@@ -5,6 +5,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
+
+# No per-example deadline: the first example that reaches a numba kernel pays for its
+# compile, or its load from the cache (a fresh clone compiles them all), hundreds of
+# milliseconds that hypothesis would report as a flaky slow test.
+settings.register_profile("qem-lod", deadline=None)
+settings.load_profile("qem-lod")
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_MESHES = REPO.parent / "shared" / "meshes"

@@ -187,6 +187,29 @@ def test_an_open_mesh_keeps_its_borders_through_the_rounds(small_rounds):
         assert reference.fast_boundary_loops(level_faces) == loops, n
 
 
+def test_a_round_of_as_many_parts_as_labels_allows(small_rounds, monkeypatch):
+    """Parts of one vertex: the first round has MAX_PARTS parts, most of them all band
+    (no edge, an empty heap); the build still contracts to a closed tetrahedron."""
+    monkeypatch.setattr(rounds, "PART_VERTICES", 1)
+    parts_per_round = []
+    start_round = rounds._start_round
+
+    def counting(*args, **kwargs):
+        loops = start_round(*args, **kwargs)
+        parts_per_round.append(None if loops is None else len(loops))
+        return loops
+
+    monkeypatch.setattr(rounds, "_start_round", counting)
+    vertices, faces = icosphere(4, jitter=0.05, seed=6)
+    pm = qem_core.build(vertices, faces)
+    assert parts_per_round[0] == rounds.MAX_PARTS
+    assert small_rounds and small_rounds[0] > 0
+    assert pm.n_base == 4
+    for n in np.unique(np.geomspace(4, pm.n_full, 8).astype(int)):
+        _, level_faces = pm.lod(int(n))
+        assert reference.fast_is_closed_manifold(level_faces), n
+
+
 def test_the_levels_do_not_depend_on_the_number_of_cores(small_rounds, monkeypatch):
     vertices, faces = icosphere(4, jitter=0.1, seed=1)
     on_two = qem_core.build(vertices, faces, {"error_mode": "exact"})

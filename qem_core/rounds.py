@@ -81,14 +81,16 @@ __all__ = [
     "spatial_order",
 ]
 
-# Live vertices per part of a round, about (module docstring); measured on dragon, whose
-# loops took 0.63x the time with parts of this size as with two halves of the mesh.
+# Live vertices per part of a round, about (module docstring). On dragon the rounds'
+# loops took 0.72-0.86x the time with parts of this size as with two halves of the mesh;
+# parts of 8192 were no faster, and their bands cost some levels up to 23 % in RMS.
 PART_VERTICES = 16384
 # Part labels are uint8 and PART_FROZEN is the last: at most this many parts a round.
 MAX_PARTS = PART_FROZEN
-# Rounds run while more vertices than this are live (and only for meshes this big):
-# below it a round's set-up (cut, face lists, heaps) costs about what its second thread
-# saves; on dragon, rounds down to 16384 live vertices measured the same as to 65536.
+# Rounds run while more vertices than this are live (and only for meshes this big). The
+# coarse levels are the ones the bands' deferrals would cost: with two halves, rounds
+# down to 16384 live vertices took 0.93-0.98x dragon's build time but raised the
+# Hausdorff distance of its 2 % levels up to 1.07x the best peer's (README).
 PARALLEL_MIN_VERTICES = 65536
 # A bound on the rounds of one build (each halves the live vertices or so; 4 on dragon).
 MAX_ROUNDS = 64

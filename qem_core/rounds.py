@@ -340,9 +340,10 @@ def _start_round(executor: ThreadPoolExecutor, cx: Complex, hood: Neighbourhood,
     position = np.full(n_edge_ids, -1, np.int32)
     fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, ends, ids, run_start, run_end,
               params[PARAM_EXACT] != 0.0, params[PARAM_RANK_TOLERANCE], entries)
-    keys = np.concatenate([entries[run, 0] for run in runs])
+    keys = np.concatenate([entries[run, 0] for run in runs])  # a copy: partitioned in place
     k = int(STOP_QUANTILE * (n_edges - 1))
-    stop_key = np.partition(keys, k)[k]
+    keys.partition(k)
+    stop_key = keys[k]
     heaps = [Heap(entries[run], position, np.array([run.stop - run.start], np.int64))
              for run in runs]
     # The loops stop before the candidates above the round's cost: those stay out. The

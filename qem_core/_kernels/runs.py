@@ -43,9 +43,8 @@ def _taken_before(key, p, q):
 taken_before = numba.njit(cache=True, inline="always")(_taken_before)
 
 
-def _sift_part_down(heap, size, key):
-    """Move heap[0] down to its place in the binary heap heap[:size] of parts."""
-    i = 0
+def _sift_part_down(heap, size, key, i):
+    """Move heap[i] down to its place in the binary heap heap[:size] of parts."""
     while True:
         child = 2 * i + 1
         if child >= size:
@@ -90,23 +89,16 @@ def _merge_by_running_max(costs, part_ends, order):
     n_parts = part_ends.shape[0]
     head = np.empty(n_parts, np.int64)
     key = np.empty(n_parts)  # each part's running maximum once its head is taken
-    heap = np.empty(n_parts, np.int64)
+    heap = np.empty(n_parts, np.int64)  # the parts with rows left
     size = 0
     for p in range(n_parts):
         head[p] = part_ends[p - 1] if p > 0 else 0
-        if head[p] == part_ends[p]:
-            continue
-        key[p] = head_key(costs, head[p], -np.inf)
-        # Sift the new part up.
-        i = size
-        heap[i] = p
-        size += 1
-        while i > 0:
-            parent = (i - 1) // 2
-            if not taken_before(key, heap[i], heap[parent]):
-                break
-            heap[i], heap[parent] = heap[parent], heap[i]
-            i = parent
+        if head[p] < part_ends[p]:
+            key[p] = head_key(costs, head[p], -np.inf)
+            heap[size] = p
+            size += 1
+    for i in range(size // 2 - 1, -1, -1):
+        sift_part_down(heap, size, key, i)
     for i in range(order.shape[0]):
         p = heap[0]
         order[i] = head[p]
@@ -116,7 +108,7 @@ def _merge_by_running_max(costs, part_ends, order):
         else:
             size -= 1
             heap[0] = heap[size]
-        sift_part_down(heap, size, key)
+        sift_part_down(heap, size, key, 0)
 
 
 merge_by_running_max = numba.njit(cache=True)(_merge_by_running_max)

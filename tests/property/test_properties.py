@@ -16,7 +16,7 @@ import qem_core
 from qem_core.stream import SplitStreamDecoder, encode_split_frames, grid_for, iter_frames
 from tests.tiny_meshes import grid, icosphere
 
-PROPERTY_SETTINGS = settings(max_examples=25, deadline=None, derandomize=True)
+PROPERTY_SETTINGS = settings(max_examples=25, derandomize=True)
 
 
 @st.composite

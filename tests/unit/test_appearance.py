@@ -254,7 +254,7 @@ def test_bad_attribute_weights_are_refused(value):
 
 
 # -- property: random small meshes with random corner UVs ------------------------------
-@settings(max_examples=25, deadline=None)
+@settings(max_examples=25)
 @given(seed=st.integers(0, 10_000), n_seams=st.integers(0, 6))
 def test_random_uv_meshes_refine_consistently(seed, n_seams):
     rng = np.random.default_rng(seed)

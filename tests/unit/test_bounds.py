@@ -17,7 +17,7 @@ def assert_same_bits(box, expected):
     np.testing.assert_array_equal(np.signbit(box), np.signbit(expected))
 
 
-@settings(max_examples=100, deadline=None)
+@settings(max_examples=100)
 @given(POINTS, st.data())
 def test_equals_numpys_min_and_max_with_zeros_made_positive(points, data):
     assert_same_bits(bounding_box(points),

@@ -364,7 +364,7 @@ def textured_meshes(draw):
     return Mesh(vertices, faces, attributes, corner_uvs=corner_uvs)
 
 
-@settings(max_examples=60, deadline=None, derandomize=True)
+@settings(max_examples=60, derandomize=True)
 @given(mesh=textured_meshes())
 def test_random_corner_uvs_round_trip(mesh):
     for fmt in FORMATS:

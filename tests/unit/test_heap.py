@@ -47,7 +47,7 @@ def check_heap(heap, expected, parked):
             assert position[edge] == (PARKED if edge in parked else -1)
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=200)
 @given(OPERATIONS, KEYS)
 def test_operations_keep_the_heap_and_its_index(operations, stop):
     heap = make_heap(N_EDGES)
@@ -84,7 +84,7 @@ def test_operations_keep_the_heap_and_its_index(operations, stop):
         check_heap(heap, expected, parked)
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=200)
 @given(st.lists(st.tuples(KEYS, LOW_ENDS), min_size=0, max_size=N_EDGES), KEYS)
 def test_park_above_keeps_the_rows_at_or_below_the_stop_in_order(rows, stop):
     heap = make_heap(N_EDGES)

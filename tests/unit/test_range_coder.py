@@ -83,7 +83,7 @@ def _symbols(draw):
     return as_array(kinds), as_array(contexts), as_array(values), as_array(bounds)
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=200)
 @given(_symbols())
 def test_any_symbols_round_trip_and_use_every_byte(symbols):
     kinds, contexts, values, bounds = symbols

@@ -5,8 +5,12 @@ import numba
 import numpy as np
 
 from . import heap as heap_ops
+from .memory import prefetch
 from .placement import edge_cost
 from .quadrics import QUADRIC_SIZE, boundary_quadric
+
+# How many candidates ahead `fill_heap` asks for the rows of their ends.
+FILL_AHEAD = 8
 
 
 def _sum_quadrics(faces, face_quadrics, face_edge, border, border_edges, border_quadrics,
@@ -66,6 +70,11 @@ def _fill_heap(vertices, vertex_quadrics, edge_quadrics, edges, ids, run_start, 
     The costs are independent, so they are computed in parallel, each edge by the same
     arithmetic as in the loop: the result does not depend on the number of threads. Each
     chunk takes its share of every run.
+
+    An edge's ends are near it in z-order but not in the cache: each pricing waited for
+    their rows, one edge after another. The rows of the ends (in exact mode, the edge's
+    too) FILL_AHEAD edges on are asked for first: the rounds' fills took 0.6-0.7x the
+    time on the dragon.
     """
     n_chunks = 256
     for chunk in numba.prange(n_chunks):
@@ -76,6 +85,15 @@ def _fill_heap(vertices, vertex_quadrics, edge_quadrics, edges, ids, run_start, 
             first = run_start[r] + chunk * length // n_chunks
             last = run_start[r] + (chunk + 1) * length // n_chunks
             for e in range(first, last):
+                if e + FILL_AHEAD < last:
+                    for end in range(2):
+                        v = edges[e + FILL_AHEAD, end]
+                        prefetch(vertices, v, 0)
+                        prefetch(vertex_quadrics, v, 0)
+                        prefetch(vertex_quadrics, v, 8 * QUADRIC_SIZE - 8)
+                    if exact:
+                        prefetch(edge_quadrics, ids[e + FILL_AHEAD], 0)
+                        prefetch(edge_quadrics, ids[e + FILL_AHEAD], 8 * QUADRIC_SIZE - 8)
                 a, b, edge = edges[e, 0], edges[e, 1], ids[e]
                 cost = edge_cost(vertices, vertex_quadrics, edge_quadrics, a, b, edge, exact,
                                  rank_tolerance, quadric, position)

@@ -26,6 +26,8 @@ from ._kernels.topology import (
     count_components,
     find_edges,
     first_equal_rows,
+    mark_degenerate_faces,
+    renumber_kept_faces,
     sorted_corner_keys,
 )
 from .errors import InvalidMeshError
@@ -181,51 +183,47 @@ def prepare_mesh_and_edges(
     n_vertices = vertices.shape[0]
     n_faces = faces.shape[0]
 
-    identity = np.arange(n_vertices, dtype=np.int32)
-    weld_map = _weld_map(vertices) if merge_coincident else identity
-    # Scans rarely weld, drop or renumber anything: skip the gathers then.
-    welded = not np.array_equal(weld_map, identity)
-    welded_faces = weld_map[faces] if welded else faces
-
-    degenerate = (
-        (welded_faces[:, 0] == welded_faces[:, 1])
-        | (welded_faces[:, 1] == welded_faces[:, 2])
-        | (welded_faces[:, 2] == welded_faces[:, 0])
-    )
-    duplicate = _duplicate_faces(welded_faces, ~degenerate)
-    face_kept = ~(degenerate | duplicate)
-    if not face_kept.any():
+    weld_map = (_weld_map(vertices) if merge_coincident
+                else np.arange(n_vertices, dtype=np.int32))
+    # Degenerate faces and the vertices the others use, in one pass. A duplicate face
+    # uses the vertices of the face it repeats: dropping it drops no vertex.
+    degenerate = np.empty(n_faces, np.uint8)
+    vertex_used = np.zeros(n_vertices, np.uint8)
+    n_degenerate = mark_degenerate_faces(faces, weld_map, degenerate, vertex_used)
+    if n_degenerate == n_faces:
         raise InvalidMeshError(
             f"all {n_faces} faces are degenerate (two corners on the same vertex); "
             "nothing is left to simplify"
         )
-
-    # A vertex is kept when it is a weld representative used by a kept face.
-    kept_faces = welded_faces if face_kept.all() else welded_faces[face_kept]
-    vertex_used = np.zeros(n_vertices, dtype=bool)
-    vertex_used[kept_faces.ravel()] = True
     kept_vertices = np.flatnonzero(vertex_used)
-    if kept_vertices.size == n_vertices:
-        vertex_map = weld_map.copy()  # no vertex dropped, so none welded either
-        out_faces = kept_faces.copy()
+    n_kept = int(kept_vertices.size)
+    if n_kept == n_vertices:
+        vertex_map = weld_map  # no vertex dropped, so none welded either
     else:
         new_index = np.full(n_vertices, -1, dtype=np.int32)
-        new_index[kept_vertices] = np.arange(kept_vertices.size, dtype=np.int32)
+        new_index[kept_vertices] = np.arange(n_kept, dtype=np.int32)
         vertex_map = new_index[weld_map]
-        out_faces = vertex_map[kept_faces]
+    out_faces = np.empty((n_faces - n_degenerate, 3), np.int32)
+    renumber_kept_faces(faces, degenerate, vertex_map, out_faces)
+    # The edges of the faces left find their duplicates too; in the rare mesh with any,
+    # the edges are found again without them.
+    mesh_edges, duplicate = _edges_and_duplicates(out_faces, n_kept)
+    n_duplicate = int(np.count_nonzero(duplicate))
+    kept_rows = np.flatnonzero(degenerate == 0)
+    if n_duplicate:
+        kept_rows = kept_rows[duplicate == 0]
+        out_faces = np.ascontiguousarray(out_faces[duplicate == 0])
+        mesh_edges = unique_edges(out_faces, n_kept)
     face_map = np.full(n_faces, -1, dtype=np.int32)
-    face_map[face_kept] = np.arange(out_faces.shape[0], dtype=np.int32)
+    face_map[kept_rows] = np.arange(kept_rows.size, dtype=np.int32)
 
     n_dropped = int(np.count_nonzero(vertex_map < 0))
-    n_kept = int(kept_vertices.size)
-    out_faces = np.ascontiguousarray(out_faces, dtype=np.int32)
-    mesh_edges = unique_edges(out_faces, n_kept)
     edge_face_counts = mesh_edges.edge_face_count
     report = {
         "unreferenced_vertices": n_dropped,
         "merged_vertices": n_vertices - n_dropped - n_kept,
-        "degenerate_faces": int(np.count_nonzero(degenerate)),
-        "duplicate_faces": int(np.count_nonzero(duplicate)),
+        "degenerate_faces": n_degenerate,
+        "duplicate_faces": n_duplicate,
         "non_manifold_edges": int(np.count_nonzero(edge_face_counts > 2)),
         "boundary_edges": int(np.count_nonzero(edge_face_counts == 1)),
         "components": int(count_components(out_faces, n_kept)),
@@ -235,7 +233,7 @@ def prepare_mesh_and_edges(
         vertices=(vertices.copy() if n_kept == n_vertices
                   else np.ascontiguousarray(vertices[kept_vertices])),
         faces=out_faces,
-        vertex_map=vertex_map,
+        vertex_map=vertex_map.copy() if vertex_map is weld_map else vertex_map,
         face_map=face_map,
         report=report,
     )
@@ -244,17 +242,34 @@ def prepare_mesh_and_edges(
 
 def unique_edges(faces: np.ndarray, n_vertices: int) -> MeshEdges:
     """The undirected edges of ``faces`` (m, 3) int32 with indices below n_vertices."""
+    return _find_edges(faces, n_vertices, search_duplicates=False)[0]
+
+
+def _edges_and_duplicates(faces: np.ndarray, n_vertices: int) -> tuple[MeshEdges, np.ndarray]:
+    """`unique_edges`, and (m,) uint8: 1 for each face with the corners of an earlier one
+    (in any order or orientation)."""
+    mesh_edges, duplicate, unsearched = _find_edges(faces, n_vertices, search_duplicates=True)
+    if unsearched:  # edges of very many faces: compare the faces' sorted corners instead
+        duplicate = _duplicate_faces(faces)
+    return mesh_edges, duplicate
+
+
+def _find_edges(faces: np.ndarray, n_vertices: int, search_duplicates: bool
+                ) -> tuple[MeshEdges, np.ndarray, int]:
+    """(edges, duplicate flags or (0,), edges not searched): see topology.find_edges."""
     faces = np.ascontiguousarray(faces, np.int32)
     m = faces.shape[0]
     face_edge = np.empty((m, 3), np.int32)  # every side written
     edges = np.empty((3 * m, 2), np.int32)  # rows past the count are never read
     edge_face_count = np.zeros(3 * m, np.int32)
     edge_side = np.empty(3 * m, np.int64)
-    n_edges = find_edges(faces, n_vertices, face_edge, edges, edge_face_count, edge_side,
-                         sort_chunks())
+    duplicate = np.zeros(m if search_duplicates else 0, np.uint8)
+    n_edges, unsearched = find_edges(faces, n_vertices, face_edge, edges, edge_face_count,
+                                     edge_side, sort_chunks(), duplicate)
     # Copies, so the (3m,) upper-bound arrays are freed.
-    return MeshEdges(edges[:n_edges].copy(), face_edge, edge_face_count[:n_edges].copy(),
-                     edge_side[:n_edges].copy())
+    mesh_edges = MeshEdges(edges[:n_edges].copy(), face_edge, edge_face_count[:n_edges].copy(),
+                           edge_side[:n_edges].copy())
+    return mesh_edges, duplicate, int(unsearched)
 
 
 def _weld_map(vertices: np.ndarray) -> np.ndarray:
@@ -264,15 +279,11 @@ def _weld_map(vertices: np.ndarray) -> np.ndarray:
     return _first_equal_rows(bits).astype(np.int32)
 
 
-def _duplicate_faces(faces: np.ndarray, candidate: np.ndarray) -> np.ndarray:
-    """(m,) bool: faces among `candidate` whose vertex set repeats an earlier candidate's."""
-    rows = np.flatnonzero(candidate)
-    corners = np.zeros((rows.size, 2), np.uint64)
-    sorted_corner_keys(faces, rows, corners)
-    first = _first_equal_rows(corners)
-    duplicate = np.zeros(faces.shape[0], dtype=bool)
-    duplicate[rows[first != np.arange(rows.size)]] = True
-    return duplicate
+def _duplicate_faces(faces: np.ndarray) -> np.ndarray:
+    """(m,) uint8: 1 for each face whose vertex set repeats an earlier face's."""
+    corners = np.zeros((faces.shape[0], 2), np.uint64)
+    sorted_corner_keys(faces, np.arange(faces.shape[0]), corners)
+    return (_first_equal_rows(corners) != np.arange(faces.shape[0])).astype(np.uint8)
 
 
 def _first_equal_rows(rows: np.ndarray) -> np.ndarray:

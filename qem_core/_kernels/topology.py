@@ -82,14 +82,64 @@ def _sorted_corner_keys(faces, rows, keys):
 sorted_corner_keys = numba.njit(cache=True)(_sorted_corner_keys)
 
 
-def _find_edges(faces, n_vertices, face_edge, edges, edge_face_count, edge_side, n_chunks):
-    """Number the undirected edges of ``faces`` in (low, high) order; returns their count E.
+# An edge of more faces than this is not searched for duplicate faces (`find_edges`):
+# the search compares every two of its faces.
+MAX_FACES_COMPARED = 32
+
+
+def _mark_degenerate_faces(faces, weld_map, degenerate, vertex_used):
+    """degenerate (m,) uint8 out: 1 for each face with two corners on one vertex once
+    welded (``weld_map``: each vertex's representative); vertex_used (n,) uint8 zeros,
+    out: 1 for each representative a face that is not degenerate uses. Returns the
+    number of degenerate faces."""
+    n_degenerate = 0
+    for f in range(faces.shape[0]):
+        a, b, c = weld_map[faces[f, 0]], weld_map[faces[f, 1]], weld_map[faces[f, 2]]
+        if a == b or b == c or c == a:
+            degenerate[f] = 1
+            n_degenerate += 1
+        else:
+            degenerate[f] = 0
+            vertex_used[a] = 1
+            vertex_used[b] = 1
+            vertex_used[c] = 1
+    return n_degenerate
+
+
+mark_degenerate_faces = numba.njit(cache=True)(_mark_degenerate_faces)
+
+
+def _renumber_kept_faces(faces, degenerate, vertex_map, out):
+    """out (faces left, 3) int32: the faces not degenerate, in order, each corner v
+    written vertex_map[v] (its welded representative's new number)."""
+    row = 0
+    for f in range(faces.shape[0]):
+        if degenerate[f]:
+            continue
+        for k in range(3):
+            out[row, k] = vertex_map[faces[f, k]]
+        row += 1
+
+
+renumber_kept_faces = numba.njit(cache=True)(_renumber_kept_faces)
+
+
+def _find_edges(faces, n_vertices, face_edge, edges, edge_face_count, edge_side, n_chunks,
+                duplicate):
+    """Number the undirected edges of ``faces`` in (low, high) order; returns their count
+    E and the number of edges not searched for duplicate faces (below).
 
     faces : (m, 3) int32. Side k of face f runs from corner k to corner k + 1.
     face_edge : (m, 3) int32 out, the edge of each side.
     edges : (>= E, 2) int32 out, (low, high) of each edge, low < high.
     edge_face_count : (>= E,) int32 zeros, out: the faces on each edge.
     edge_side : (>= E,) int64 out: the last side (3 f + k) on each edge.
+    duplicate : (m,) uint8 zeros, out, or (0,) for no search: 1 for each face with the
+    same three corners as an earlier face. Two such faces share all three edges, so
+    they are found on any of them, comparing the corners opposite each edge of its
+    faces; no edge but those of more than MAX_FACES_COMPARED faces goes unsearched
+    (the second count: 0 means ``duplicate`` is complete). The edges come out the same
+    with or without the search (prepare.py: it replaced a hash table of sorted corners).
 
     A counting sort of the sides by low end, then an insertion sort of each low end's few
     sides by high end: O(m), and no (3m,) int64 key array to sort. Each side is one int64,
@@ -137,9 +187,12 @@ def _find_edges(faces, n_vertices, face_edge, edges, edge_face_count, edge_side,
         first_edge[low + 1] = n_edges
     for low in range(n_vertices):
         first_edge[low + 1] += first_edge[low]
+    search = duplicate.shape[0] > 0
+    unsearched = np.zeros(n_vertices, np.int32)
     for low in numba.prange(n_vertices):
         e = first_edge[low] - 1
         previous = -1
+        edge_start = 0
         for i in range(bucket[low], bucket[low + 1]):
             high = high_and_side[i] >> 32
             if high != previous:
@@ -147,11 +200,25 @@ def _find_edges(faces, n_vertices, face_edge, edges, edge_face_count, edge_side,
                 e += 1
                 edges[e, 0] = low
                 edges[e, 1] = high
+                edge_start = i
             s = high_and_side[i] & LOW_32_BITS
             face_edge[s // 3, s % 3] = e
             edge_face_count[e] += 1
             edge_side[e] = s
-    return first_edge[n_vertices]
+            if search and i > edge_start:
+                if edge_face_count[e] > MAX_FACES_COMPARED:
+                    if edge_face_count[e] == MAX_FACES_COMPARED + 1:
+                        unsearched[low] += 1
+                    continue
+                # The corner opposite side s; the earlier sides of this edge are of
+                # earlier faces (a side sorts by 3 f + k).
+                x = faces[s // 3, (s % 3 + 2) % 3]
+                for j in range(edge_start, i):
+                    t = high_and_side[j] & LOW_32_BITS
+                    if faces[t // 3, (t % 3 + 2) % 3] == x:
+                        duplicate[s // 3] = 1  # the same 1 from each shared edge
+                        break
+    return first_edge[n_vertices], unsearched.sum()
 
 
 find_edges = numba.njit(cache=True, parallel=True)(_find_edges)

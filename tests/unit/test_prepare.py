@@ -235,7 +235,8 @@ def test_edges_are_numbered_in_end_order_whatever_the_chunks(drawn, n_chunks):
     m = faces.shape[0]
     face_edge, edges = np.full((m, 3), -1, np.int32), np.full((3 * m, 2), -1, np.int32)
     counts, last_side = np.zeros(3 * m, np.int32), np.full(3 * m, -1, np.int64)
-    n_edges = find_edges(faces, n, face_edge, edges, counts, last_side, n_chunks)
+    n_edges, _ = find_edges(faces, n, face_edge, edges, counts, last_side, n_chunks,
+                            np.zeros(0, np.uint8))
     assert n_edges == len(expected)
     assert [tuple(edge) for edge in edges[:n_edges].tolist()] == expected
     for e, edge in enumerate(expected):
@@ -244,3 +245,70 @@ def test_edges_are_numbered_in_end_order_whatever_the_chunks(drawn, n_chunks):
         for side in sides[edge]:
             assert face_edge[side // 3, side % 3] == e
     assert unique_edges(faces, n).edges.tolist() == edges[:n_edges].tolist()
+
+
+@given(st.integers(3, 6).flatmap(lambda n: st.tuples(
+    st.just(n),
+    st.lists(st.permutations(range(n)).map(lambda p: p[:3]), min_size=1, max_size=40))),
+    st.integers(1, 5), st.booleans())
+def test_duplicate_faces_are_found_on_their_edges(drawn, n_chunks, fall_back):
+    """find_edges' search against sets of corners: a face is a duplicate when an earlier
+    face has its three corners (on few vertices the faces repeat, and edges have many
+    faces). ``fall_back``: prepare_mesh is told no edge was searched, as for edges of
+    more than MAX_FACES_COMPARED faces, and compares sorted corners instead; the same
+    faces are dropped either way."""
+    from qem_core import prepare
+
+    n, face_list = drawn
+    faces = np.array(face_list, np.int32).reshape(-1, 3)
+    seen, expected = set(), []
+    for face in face_list:
+        expected.append(int(frozenset(face) in seen))
+        seen.add(frozenset(face))
+    m = faces.shape[0]
+    duplicate = np.zeros(m, np.uint8)
+    _, unsearched = find_edges(faces, n, np.empty((m, 3), np.int32),
+                               np.empty((3 * m, 2), np.int32), np.zeros(3 * m, np.int32),
+                               np.empty(3 * m, np.int64), n_chunks, duplicate)
+    assert unsearched == 0  # no edge has more than 32 faces here
+    assert duplicate.tolist() == expected
+
+    real = prepare._find_edges
+
+    def nothing_searched(faces, n_vertices, search_duplicates):
+        mesh_edges, found, _ = real(faces, n_vertices, search_duplicates)
+        return mesh_edges, np.zeros_like(found), 1 if search_duplicates else 0
+
+    with pytest.MonkeyPatch.context() as patch:
+        if fall_back:
+            patch.setattr(prepare, "_find_edges", nothing_searched)
+        prepared = prepare_mesh(np.random.default_rng(n).random((n, 3)), faces)
+    kept = [not d for d in expected]
+    assert prepared.report["duplicate_faces"] == sum(expected)
+    assert (prepared.face_map >= 0).tolist() == kept
+    assert np.array_equal(prepared.faces, prepared.vertex_map[faces[kept]])
+    assert prepared.faces.shape[0] == len(seen)
+
+
+def test_duplicates_on_an_edge_of_very_many_faces_are_found_by_sorted_corners():
+    """A book of 40 pages on edge 0-1 (more faces than the edge search compares), page 7
+    repeated at the end, reversed: the edge is counted as unsearched, and preparation
+    finds the repeat by comparing sorted corners."""
+    from qem_core._kernels.topology import MAX_FACES_COMPARED
+
+    n_pages = 40
+    assert n_pages > MAX_FACES_COMPARED
+    angles = np.linspace(0.0, np.pi, n_pages)
+    vertices = np.concatenate([[[0, 0, 0], [0, 0, 1]],
+                               np.stack([np.cos(angles), np.sin(angles), 0.5 + 0 * angles], 1)])
+    pages = [[0, 1, 2 + i] for i in range(n_pages)]
+    faces = np.array(pages + [pages[7][::-1]], np.int32)
+    m = faces.shape[0]
+    _, unsearched = find_edges(faces, vertices.shape[0], np.empty((m, 3), np.int32),
+                               np.empty((3 * m, 2), np.int32), np.zeros(3 * m, np.int32),
+                               np.empty(3 * m, np.int64), 2, np.zeros(m, np.uint8))
+    assert unsearched == 1
+    prepared = prepare_mesh(vertices, faces)
+    assert prepared.report["duplicate_faces"] == 1
+    assert prepared.face_map.tolist() == list(range(n_pages)) + [-1]
+    assert prepared.report["non_manifold_edges"] == 1

@@ -55,6 +55,7 @@ from ._kernels.link import make_neighbourhood, restart_generations
 from ._kernels.pairs import candidate_pairs, make_pairs
 from ._kernels.quadrics import QUADRIC_SIZE, fill_face_quadrics
 from ._kernels.runs import gather_runs
+from ._kernels.scale import ldexp_into
 from ._kernels.setup import fill_border_quadrics, fill_heap, sum_quadrics
 from .attributes import Wedges, check_options_for_wedges, make_wedges
 from .mesh import Mesh
@@ -111,7 +112,8 @@ def to_unit_scale(vertices: np.ndarray,
     half_sides = high / 2 - low / 2  # halves: no overflow
     longest = float(half_sides.max())
     scale = int(np.frexp(longest)[1]) + 1 if longest > 0.0 else 0
-    unit_vertices = np.ldexp(vertices, -scale)
+    unit_vertices = _scaled(np.ascontiguousarray(vertices, np.float64), -scale,
+                            np.empty(vertices.shape))
     # The scaled corners are the corners of the scaled vertices (the scaling is exact).
     diagonal = float(np.linalg.norm(np.ldexp(high, -scale) - np.ldexp(low, -scale)))
     return unit_vertices, scale, diagonal
@@ -130,16 +132,26 @@ def in_input_units(run: ContractionRun, scale: int, weighting: str) -> Contracti
         return run
     record, cx = run.record, run.complex
     # Only the rows written: the rest of the record's arrays is uninitialised (make_record).
+    # The run's arrays are the build's own: scaled in place.
     j = run.n_contractions
     cost_scale = scale * round(2 + 2 * WEIGHTING_AREA_EXPONENTS[weighting])
-    with np.errstate(over="ignore"):
-        cost = np.minimum(np.ldexp(record.cost[:j], cost_scale), np.finfo(np.float64).max)
     record = record._replace(
-        position_a=np.ldexp(record.position_a[:j], scale),
-        position_b=np.ldexp(record.position_b[:j], scale),
-        cost=cost,
+        position_a=_scaled(record.position_a[:j], scale),
+        position_b=_scaled(record.position_b[:j], scale),
+        cost=_scaled(record.cost[:j], cost_scale, limit=float(np.finfo(np.float64).max)),
     )
-    return run._replace(record=record, complex=cx._replace(vertices=np.ldexp(cx.vertices, scale)))
+    return run._replace(record=record, complex=cx._replace(vertices=_scaled(cx.vertices, scale)))
+
+
+def _scaled(values: np.ndarray, exponent: int, out: np.ndarray | None = None,
+            limit: float = np.inf) -> np.ndarray:
+    """values * 2**exponent (exactly, as np.ldexp), each at most ``limit``, written to
+    ``out`` (a C array of values' shape), or in place; returns it."""
+    out = values if out is None else out
+    if not (values.flags.c_contiguous and out.flags.c_contiguous):
+        raise ValueError("_scaled takes C-contiguous arrays")
+    ldexp_into(values.reshape(-1), exponent, limit, out.reshape(-1))
+    return out
 
 
 def _kernel_params(options: BuildOptions) -> np.ndarray:

@@ -65,18 +65,25 @@ level_corners = numba.njit(cache=True)(_level_corners)
 
 def _gather_reversed_runs(values, ends, n_runs, lookup, out, offsets):
     """out = lookup[values] with the runs ending at ends[:n_runs] in reverse order (each
-    run's own order kept); offsets (n_runs + 1,) out: where each reversed run starts."""
-    cursor = 0
+    run's own order kept); offsets (n_runs + 1,) out: where each reversed run starts.
+
+    The offsets first, then the runs in parallel, each written at its own offset (each
+    look-up waits for memory: one thread took 56 ms for the dragon's relabelled faces)."""
     offsets[0] = 0
     for k in range(n_runs):
         j = n_runs - 1 - k
-        for i in range(ends[j - 1] if j > 0 else 0, ends[j]):
-            out[cursor] = lookup[values[i]]
-            cursor += 1
-        offsets[k + 1] = cursor
+        offsets[k + 1] = offsets[k] + ends[j] - (ends[j - 1] if j > 0 else 0)
+    n_chunks = 64
+    for chunk in numba.prange(n_chunks):
+        for k in range(chunk * n_runs // n_chunks, (chunk + 1) * n_runs // n_chunks):
+            j = n_runs - 1 - k
+            cursor = offsets[k]
+            for i in range(ends[j - 1] if j > 0 else 0, ends[j]):
+                out[cursor] = lookup[values[i]]
+                cursor += 1
 
 
-gather_reversed_runs = numba.njit(cache=True)(_gather_reversed_runs)
+gather_reversed_runs = numba.njit(cache=True, parallel=True)(_gather_reversed_runs)
 
 
 def _fill_splits(survivor, position_a, position_b, cost, killed_end, n_contractions,

@@ -64,6 +64,8 @@ from ._kernels.partition import (
     faces_by_lowest_corner,
     freeze_band,
     morton_codes,
+    move_rows,
+    order_by_code,
     part_edges,
     renumber_edges,
     renumber_ids,
@@ -131,7 +133,7 @@ def spatial_order(vertices: np.ndarray, faces: np.ndarray, mesh_edges: MeshEdges
     codes = np.empty(n, np.uint64)
     morton_codes(vertices, low, ((1 << MORTON_BITS) - 1) / extent if extent > 0 else 0.0,
                  MORTON_BITS, codes)
-    vertex_order = np.argsort(codes, kind="stable")
+    vertex_order = order_by_code(codes, 3 * MORTON_BITS)
     rank = np.empty(n, np.int32)
     rank[vertex_order] = np.arange(n, dtype=np.int32)
     face_order = np.empty(faces.shape[0], np.int64)
@@ -158,13 +160,17 @@ def in_input_order(run_record: Record, cx: Complex, vertex_order: np.ndarray,
     empty arrays, since nothing after the loop reads it; moving it took 0.1 s of the
     dragon's build."""
 
-    def renumber(order: np.ndarray, values: np.ndarray) -> None:
-        if not values.flags.c_contiguous:  # reshape would copy, and the renumbering be lost
-            raise ValueError("in_input_order renumbers contiguous arrays only")
-        renumber_ids(order, values.reshape(-1))
+    def in_place(values: np.ndarray) -> np.ndarray:
+        if not values.flags.c_contiguous:  # reshape would copy, and the writes be lost
+            raise ValueError("in_input_order rewrites contiguous arrays only")
+        return values
 
-    def move_rows(order: np.ndarray, values: np.ndarray) -> None:
-        values[order] = values.copy()
+    def renumber(order: np.ndarray, values: np.ndarray) -> None:
+        renumber_ids(order, in_place(values).reshape(-1))
+
+    def move(order: np.ndarray, values: np.ndarray) -> None:
+        rows = in_place(values).reshape(values.shape[0], -1)
+        move_rows(order, rows.copy(), rows)
 
     def left_out(values: np.ndarray) -> np.ndarray:
         return np.zeros((0,) + values.shape[1:], values.dtype)
@@ -176,9 +182,9 @@ def in_input_order(run_record: Record, cx: Complex, vertex_order: np.ndarray,
     renumber(face_order, run_record.relabel[:n_relabel])
     renumber(vertex_order, cx.faces)
     for values in (cx.vertices, cx.vertex_alive):
-        move_rows(vertex_order, values)
+        move(vertex_order, values)
     for values in (cx.faces, cx.face_alive):
-        move_rows(face_order, values)
+        move(face_order, values)
     working = ("vertex_quadrics", "vertex_refused", "face_normals", "face_quadrics",
                "face_edge", "edge_quadrics", "face_wedges")
     return run_record, cx._replace(**{name: left_out(getattr(cx, name)) for name in working})

@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 import qem_core
 from qem_core import rounds
 from qem_core._kernels.link import PART_FROZEN
-from qem_core._kernels.partition import part_edges, renumber_ids
+from qem_core._kernels.partition import order_by_code, part_edges, renumber_ids
 from qem_core._kernels.runs import merge_by_running_max
 from qem_core.prepare import unique_edges
 from qem_core.progressive import ProgressiveMesh
@@ -161,6 +161,14 @@ def test_renumber_ids_maps_each_id_and_keeps_none(order, ids):
     expected = np.where(ids >= 0, order[np.maximum(ids, 0)], -1)
     renumber_ids(order, ids)
     np.testing.assert_array_equal(ids, expected)
+
+
+@given(st.lists(st.integers(0, (1 << 30) - 1) | st.integers(0, 7), max_size=300))
+def test_order_by_code_is_a_stable_argsort(codes):
+    """The z-order's radix sort against numpy's stable argsort: codes of up to 30 bits,
+    with many ties (small codes drawn often)."""
+    codes = np.array(codes, np.uint64)
+    assert order_by_code(codes, 30).tolist() == np.argsort(codes, kind="stable").tolist()
 
 
 def test_a_closed_mesh_keeps_its_topology_through_the_rounds(small_rounds):

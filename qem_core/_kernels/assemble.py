@@ -51,16 +51,16 @@ order_faces = numba.njit(cache=True)(_order_faces)
 
 def _level_corners(faces, level_of_face, level_of_slot, out):
     """out[level_of_face[f]] = level numbers of the corners of face f (as the run left
-    it). Faces are read in id order, whose corners lie close together in level_of_slot:
-    gathering them in level order was twice as slow."""
-    for f in range(faces.shape[0]):
+    it), in parallel. Faces are read in id order, whose corners lie close together in
+    level_of_slot: gathering them in level order was twice as slow."""
+    for f in numba.prange(faces.shape[0]):
         row = level_of_face[f]
         if row >= 0:
             for k in range(3):
                 out[row, k] = level_of_slot[faces[f, k]]
 
 
-level_corners = numba.njit(cache=True)(_level_corners)
+level_corners = numba.njit(cache=True, parallel=True)(_level_corners)
 
 
 def _gather_reversed_runs(values, ends, n_runs, lookup, out, offsets):
@@ -91,17 +91,20 @@ def _fill_splits(survivor, position_a, position_b, cost, killed_end, n_contracti
                  level_faces):
     """Split k from contraction J-1-k: its vertex s (the survivor's level number), the
     positions of s and t before the contraction, its cost, and level_faces (J + 1,), the
-    face count of each level (split k appends the faces contraction J-1-k killed)."""
-    level_faces[0] = n_base_faces
-    for k in range(n_contractions):
+    face count of each level (split k appends the faces contraction J-1-k killed). The
+    splits are each their own (in parallel); the face counts add up (one pass)."""
+    for k in numba.prange(n_contractions):
         j = n_contractions - 1 - k
         split_vertex[k] = level_of_slot[survivor[j]]
         for d in range(3):
             split_positions[k, 0, d] = position_a[j, d]
             split_positions[k, 1, d] = position_b[j, d]
         split_cost[k] = cost[j]
+    level_faces[0] = n_base_faces
+    for k in range(n_contractions):
+        j = n_contractions - 1 - k
         born = killed_end[j] - (killed_end[j - 1] if j > 0 else 0)
         level_faces[k + 1] = level_faces[k] + born
 
 
-fill_splits = numba.njit(cache=True)(_fill_splits)
+fill_splits = numba.njit(cache=True, parallel=True)(_fill_splits)

@@ -3,9 +3,10 @@
 `prepare_mesh` is the single gate between user data and the kernels: it validates the
 arrays (`validate_mesh_arrays`), welds vertices with exactly equal coordinates (STL
 triangle soups), drops degenerate and duplicate faces and unreferenced vertices, and
-reports what it found. The whole-mesh passes (equal rows, edges, components) are O(size)
-numba kernels (`_kernels/topology.py`), the rest vectorised numpy; the order of what is
-kept is stable, so the same input always gives the same output, bit for bit.
+reports what it found. The whole-mesh passes (equal rows, degenerate faces, the
+renumbering, edges and the duplicate faces found on them, components) are O(size) numba
+kernels (`_kernels/topology.py`), the rest vectorised numpy; the order of what is kept is
+stable, so the same input always gives the same output, bit for bit.
 
     input vertices   0  1  2  3  4          (3 coincides with 0, 4 is unreferenced)
     input faces      (0 1 2) (3 2 1) (1 2 3)

@@ -1,4 +1,5 @@
-"""Whole-mesh passes of the preparation: equal rows, edges and their faces, components.
+"""Whole-mesh passes of the preparation: equal rows, degenerate faces and the renumbering,
+edges and their faces (and so duplicate faces), components.
 
 Each is O(size) with no sort: on a 871k-face scan the numpy versions (sorting packed keys,
 np.unique with its inverse, union-find rounds of np.minimum.at) took most of the time

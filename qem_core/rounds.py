@@ -43,7 +43,7 @@ from concurrent.futures import ThreadPoolExecutor, wait
 
 import numpy as np
 
-from ._kernels.adjacency import FaceLists, make_face_lists
+from ._kernels.adjacency import FaceLists, make_face_lists, sort_chunks
 from ._kernels.bounds import bounding_box
 from ._kernels.contract import (
     PARAM_EXACT,
@@ -138,7 +138,7 @@ def spatial_order(vertices: np.ndarray, faces: np.ndarray, mesh_edges: MeshEdges
     rank[vertex_order] = np.arange(n, dtype=np.int32)
     face_order = np.empty(faces.shape[0], np.int64)
     ordered_faces = np.empty(faces.shape, np.int32)
-    faces_by_lowest_corner(faces, rank, face_order, ordered_faces)
+    faces_by_lowest_corner(faces, rank, face_order, ordered_faces, sort_chunks())
     n_edges = mesh_edges.edges.shape[0]
     ordered_edges = MeshEdges(np.empty((n_edges, 2), np.int32), np.empty(faces.shape, np.int32),
                               np.empty(n_edges, np.int32), np.empty(n_edges, np.int64))

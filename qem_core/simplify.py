@@ -167,7 +167,10 @@ def _kernel_params(options: BuildOptions) -> np.ndarray:
 
 
 def _initial_complex(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
-                     mesh_edges: MeshEdges, wedges: Wedges | None):
+                     mesh_edges: MeshEdges, wedges: Wedges | None, owned: bool):
+    """The complex the loop contracts, and the edges. ``owned``: vertices (float64) and
+    faces (int32), C arrays, are the build's own, and become the complex's (the loop
+    rewrites them); else they are copied."""
     n, m = vertices.shape[0], faces.shape[0]
     weighting = WEIGHTING_CODES[options.weighting]
     exact = options.error_mode == "exact"
@@ -204,11 +207,11 @@ def _initial_complex(vertices: np.ndarray, faces: np.ndarray, options: BuildOpti
         fill_wedge_quadrics(vertices, faces, face_wedges, wedge_values, weighting,
                             wedge_quadrics)
     cx = Complex(
-        vertices=np.array(vertices, np.float64, copy=True),
+        vertices=vertices if owned else np.array(vertices, np.float64, copy=True),
         vertex_quadrics=vertex_quadrics,
         vertex_alive=(np.bincount(faces.reshape(-1), minlength=n) > 0).astype(np.uint8),
         vertex_refused=np.zeros(n, np.uint8),
-        faces=np.array(faces, np.int32, copy=True),
+        faces=faces if owned else np.array(faces, np.int32, copy=True),
         face_alive=np.ones(m, np.uint8),
         face_normals=face_normals,
         face_quadrics=face_quadrics,
@@ -268,7 +271,8 @@ def contract_greedily(
             mesh_edges = unique_edges(faces, vertices.shape[0])
         vertex_order, face_order, ordered_faces, ordered_edges = spatial_order(
             vertices, faces, mesh_edges)
-        run = _contract(vertices[vertex_order], ordered_faces, options, progress, None,
+        ordered_vertices = np.asarray(vertices, np.float64)[vertex_order]  # a new C array
+        run = _contract(ordered_vertices, ordered_faces, options, progress, None,
                         ordered_edges, None, in_rounds=True)
         record, cx = in_input_order(run.record, run.complex, vertex_order, face_order)
         return ContractionRun(record, cx, run.n_contractions)
@@ -291,7 +295,8 @@ def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
     n, m = vertices.shape[0], faces.shape[0]
     if mesh_edges is None:
         mesh_edges = unique_edges(faces, n)
-    cx, edges = _initial_complex(vertices, faces, options, mesh_edges, wedges)
+    # In rounds, the mesh is the z-ordered copy contract_greedily made.
+    cx, edges = _initial_complex(vertices, faces, options, mesh_edges, wedges, owned=in_rounds)
     scratch = _make_scratch(cx, options, wedges)
     params = _kernel_params(options)
     pairs = make_pairs(_pairs_for(vertices, edges, options.pair_threshold), n, edges.shape[0])

@@ -57,9 +57,9 @@ MAX_SORT_CHUNKS = 8
 
 
 def sort_chunks() -> int:
-    """How many chunks a parallel counting sort (`fill_face_lists`, topology.find_edges)
-    splits its items into: one per numba thread, at most MAX_SORT_CHUNKS. Their results
-    do not depend on it."""
+    """How many chunks a parallel counting sort (`fill_face_lists`, topology.find_edges,
+    partition.faces_by_lowest_corner) splits its items into: one per numba thread, at
+    most MAX_SORT_CHUNKS. Their results do not depend on it."""
     return max(1, min(numba.get_num_threads(), MAX_SORT_CHUNKS))
 
 

@@ -3,6 +3,7 @@
 import numba
 import numpy as np
 
+from .adjacency import chunk_starts
 from .link import PART_FROZEN
 from .memory import prefetch
 
@@ -117,26 +118,29 @@ def _order_by_code(codes, code_bits):
 order_by_code = numba.njit(cache=True)(_order_by_code)
 
 
-def _faces_by_lowest_corner(faces, rank, face_order, renumbered):
+def _faces_by_lowest_corner(faces, rank, face_order, renumbered, n_chunks):
     """A stable counting sort of the faces by their lowest corner in the new numbering
     ``rank``: face_order (m,) out, and renumbered (m, 3) int32 out, faces[face_order]
-    with each corner v written rank[v]."""
-    count = np.zeros(rank.shape[0] + 1, np.int64)
-    for f in range(faces.shape[0]):
-        low = min(rank[faces[f, 0]], rank[faces[f, 1]], rank[faces[f, 2]])
-        count[low + 1] += 1
-    for v in range(rank.shape[0]):
-        count[v + 1] += count[v]
-    for f in range(faces.shape[0]):
-        low = min(rank[faces[f, 0]], rank[faces[f, 1]], rank[faces[f, 2]])
-        i = count[low]
-        count[low] = i + 1
-        face_order[i] = f
-        for k in range(3):
-            renumbered[i, k] = rank[faces[f, k]]
+    with each corner v written rank[v]. In ``n_chunks`` chunks of faces, in parallel,
+    each chunk's faces of a corner after the earlier chunks' (adjacency.chunk_starts):
+    the same order for any number of chunks."""
+    n_faces = faces.shape[0]
+    offset = np.zeros((n_chunks, rank.shape[0]), np.int64)
+    for chunk in numba.prange(n_chunks):
+        for f in range(chunk * n_faces // n_chunks, (chunk + 1) * n_faces // n_chunks):
+            offset[chunk, min(rank[faces[f, 0]], rank[faces[f, 1]], rank[faces[f, 2]])] += 1
+    chunk_starts(offset, np.empty(rank.shape[0], np.int64))
+    for chunk in numba.prange(n_chunks):
+        for f in range(chunk * n_faces // n_chunks, (chunk + 1) * n_faces // n_chunks):
+            a, b, c = rank[faces[f, 0]], rank[faces[f, 1]], rank[faces[f, 2]]
+            low = min(a, b, c)
+            i = offset[chunk, low]
+            offset[chunk, low] = i + 1
+            face_order[i] = f
+            renumbered[i, 0], renumbered[i, 1], renumbered[i, 2] = a, b, c
 
 
-faces_by_lowest_corner = numba.njit(cache=True)(_faces_by_lowest_corner)
+faces_by_lowest_corner = numba.njit(cache=True, parallel=True)(_faces_by_lowest_corner)
 
 
 # How many faces (edges) ahead `renumber_edges` asks for the rows it will read.

@@ -19,7 +19,12 @@ from hypothesis import strategies as st
 import qem_core
 from qem_core import rounds
 from qem_core._kernels.link import PART_FROZEN
-from qem_core._kernels.partition import order_by_code, part_edges, renumber_ids
+from qem_core._kernels.partition import (
+    faces_by_lowest_corner,
+    order_by_code,
+    part_edges,
+    renumber_ids,
+)
 from qem_core._kernels.runs import merge_by_running_max
 from qem_core.prepare import unique_edges
 from qem_core.progressive import ProgressiveMesh
@@ -169,6 +174,23 @@ def test_order_by_code_is_a_stable_argsort(codes):
     with many ties (small codes drawn often)."""
     codes = np.array(codes, np.uint64)
     assert order_by_code(codes, 30).tolist() == np.argsort(codes, kind="stable").tolist()
+
+
+@given(st.integers(3, 12).flatmap(lambda n: st.tuples(
+    st.permutations(range(n)),
+    st.lists(st.permutations(range(n)).map(lambda p: p[:3]), max_size=40))),
+    st.integers(1, 5))
+def test_faces_by_lowest_corner_is_a_stable_sort_whatever_the_chunks(drawn, n_chunks):
+    """The z-order's face sort against numpy's stable argsort of the lowest new corner."""
+    rank, face_list = drawn
+    rank = np.array(rank, np.int32)
+    faces = np.array(face_list, np.int32).reshape(-1, 3)
+    face_order = np.empty(faces.shape[0], np.int64)
+    renumbered = np.empty(faces.shape, np.int32)
+    faces_by_lowest_corner(faces, rank, face_order, renumbered, n_chunks)
+    expected = np.argsort(rank[faces].min(axis=1) if faces.size else faces[:, 0], kind="stable")
+    assert face_order.tolist() == expected.tolist()
+    assert renumbered.tolist() == rank[faces[expected]].tolist()
 
 
 def test_a_closed_mesh_keeps_its_topology_through_the_rounds(small_rounds):

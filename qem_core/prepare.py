@@ -234,7 +234,7 @@ def prepare_mesh_and_edges(
         vertices=(vertices.copy() if n_kept == n_vertices
                   else np.ascontiguousarray(vertices[kept_vertices])),
         faces=out_faces,
-        vertex_map=vertex_map.copy() if vertex_map is weld_map else vertex_map,
+        vertex_map=vertex_map,
         face_map=face_map,
         report=report,
     )
@@ -282,8 +282,8 @@ def _weld_map(vertices: np.ndarray) -> np.ndarray:
 
 def _duplicate_faces(faces: np.ndarray) -> np.ndarray:
     """(m,) uint8: 1 for each face whose vertex set repeats an earlier face's."""
-    corners = np.zeros((faces.shape[0], 2), np.uint64)
-    sorted_corner_keys(faces, np.arange(faces.shape[0]), corners)
+    corners = np.empty((faces.shape[0], 2), np.uint64)  # every row written
+    sorted_corner_keys(faces, corners)
     return (_first_equal_rows(corners) != np.arange(faces.shape[0])).astype(np.uint8)
 
 

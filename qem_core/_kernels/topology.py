@@ -67,12 +67,12 @@ def _first_equal_rows(rows, first):
 first_equal_rows = numba.njit(cache=True)(_first_equal_rows)
 
 
-def _sorted_corner_keys(faces, rows, keys):
-    """keys[i] = the corners of face rows[i] as a set: (low << 32 | middle, high).
+def _sorted_corner_keys(faces, keys):
+    """keys[f] = the corners of face f as a set: (low << 32 | middle, high).
 
-    faces : (m, 3) int32; rows : (r,) int64; keys : (r, 2) uint64, out."""
-    for i in range(rows.shape[0]):
-        a, b, c = faces[rows[i], 0], faces[rows[i], 1], faces[rows[i], 2]
+    faces : (m, 3) int32; keys : (m, 2) uint64, out."""
+    for i in range(faces.shape[0]):
+        a, b, c = faces[i, 0], faces[i, 1], faces[i, 2]
         low = min(a, b, c)
         high = max(a, b, c)
         middle = a ^ b ^ c ^ low ^ high

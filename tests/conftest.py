@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -11,7 +12,10 @@ from hypothesis import settings
 # compile, or its load from the cache (a fresh clone compiles them all), hundreds of
 # milliseconds that hypothesis would report as a flaky slow test.
 settings.register_profile("qem-lod", deadline=None)
-settings.load_profile("qem-lod")
+# A long search before a commit that touches a kernel: HYPOTHESIS_PROFILE=thorough make
+# test (CI's default draws 100 examples per property, a different 100 on every run).
+settings.register_profile("thorough", deadline=None, max_examples=2000)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "qem-lod"))
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_MESHES = REPO.parent / "shared" / "meshes"

@@ -40,6 +40,7 @@ import os
 import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor, wait
+from typing import NamedTuple
 
 import numpy as np
 
@@ -63,12 +64,15 @@ from ._kernels.pairs import Pairs
 from ._kernels.partition import (
     faces_by_lowest_corner,
     freeze_band,
+    mark_used,
     morton_codes,
     move_rows,
     order_by_code,
     part_edges,
     renumber_edges,
     renumber_ids,
+    take_renumbered_rows,
+    take_rows,
 )
 from ._kernels.setup import fill_heap
 from .prepare import MeshEdges
@@ -77,10 +81,13 @@ from .record import append_merged, make_record, with_room_for
 __all__ = [
     "PARALLEL_MIN_VERTICES",
     "PART_VERTICES",
+    "LiveRows",
+    "compacted",
     "contract_in_rounds",
     "in_input_order",
     "edges_by_part",
     "spatial_order",
+    "write_back",
 ]
 
 # Live vertices per part of a round, about (module docstring). On dragon the rounds'
@@ -374,3 +381,73 @@ def _start_round(executor: ThreadPoolExecutor, cx: Complex, hood: Neighbourhood,
                                make_record(max(n_part, 1), int(faces_in_part[p])),
                                round_params, make_scratch()))
     return loops
+
+
+class LiveRows(NamedTuple):
+    """Where the rows of a compacted complex (`compacted`) came from: for each, its
+    vertex, face and edge id in the complex it was taken from."""
+
+    vertices: np.ndarray  # (n_live,) int32
+    faces: np.ndarray  # (m_live,) int32
+    edges: np.ndarray  # (E_live,) int32
+
+
+def compacted(cx: Complex) -> tuple[Complex, LiveRows]:
+    """The live part of ``cx`` as a complex of its own: its live vertices, faces and
+    edges, renumbered in the order they had. The serial loop after the rounds runs on
+    it: its few live rows, scattered over arrays sized for the input, now lie together.
+    An order-keeping renumbering changes no tie-break (equal costs are ordered by their
+    ends' numbers, lists by face number), so the loop makes the same contractions.
+    Geometric costs only (no appearance attributes: the rounds run without them)."""
+    live_vertices = np.flatnonzero(cx.vertex_alive).astype(np.int32)
+    live_faces = np.flatnonzero(cx.face_alive).astype(np.int32)
+    vertex_row = np.full(cx.vertices.shape[0], -1, np.int32)
+    vertex_row[live_vertices] = np.arange(live_vertices.size, dtype=np.int32)
+    edge_used = np.zeros(int(cx.face_edge.max()) + 1 if cx.face_edge.size else 0, np.uint8)
+    mark_used(live_faces, cx.face_edge, edge_used)
+    live_edges = np.flatnonzero(edge_used).astype(np.int32)
+    edge_row = np.cumsum(edge_used, dtype=np.int32) - 1
+
+    def take(rows: np.ndarray, values: np.ndarray, new_id: np.ndarray | None = None
+             ) -> np.ndarray:
+        if values.shape[0] == 0:  # a field the mode does not use
+            return values
+        out = np.empty((rows.size,) + values.shape[1:], values.dtype)
+        if new_id is None:
+            take_rows(rows, values.reshape(values.shape[0], -1), out.reshape(rows.size, -1))
+        else:
+            take_renumbered_rows(rows, values, new_id, out)
+        return out
+
+    small = cx._replace(
+        vertices=take(live_vertices, cx.vertices),
+        vertex_quadrics=take(live_vertices, cx.vertex_quadrics),
+        vertex_alive=cx.vertex_alive[live_vertices],
+        vertex_refused=cx.vertex_refused[live_vertices],
+        faces=take(live_faces, cx.faces, vertex_row),
+        face_alive=cx.face_alive[live_faces],
+        face_normals=take(live_faces, cx.face_normals),
+        face_quadrics=take(live_faces, cx.face_quadrics),
+        face_edge=take(live_faces, cx.face_edge, edge_row),
+        edge_quadrics=take(live_edges, cx.edge_quadrics),
+    )
+    return small, LiveRows(live_vertices, live_faces, live_edges)
+
+
+def write_back(small: Complex, rows: LiveRows, cx: Complex, record: Record,
+               counts_before: np.ndarray) -> None:
+    """Tell what the loop did on ``small`` (`compacted` from ``cx``) in cx's numbers:
+    the mesh (positions, faces, what is alive) and the record's rows after
+    ``counts_before`` (its counts when the loop began). The loop's working state
+    (quadrics, refusal marks, edge ids) is not told back: nothing after the loop reads
+    it (`in_input_order`). Renumbers small's faces in place."""
+    move_rows(rows.vertices, small.vertices, cx.vertices)
+    cx.vertex_alive[rows.vertices] = small.vertex_alive
+    renumber_ids(rows.vertices, small.faces.reshape(-1))
+    move_rows(rows.faces, small.faces, cx.faces)
+    cx.face_alive[rows.faces] = small.face_alive
+    (n0, k0, r0), (n1, k1, r1) = counts_before[:3], record.counts[:3]
+    renumber_ids(rows.vertices, record.a[n0:n1])
+    renumber_ids(rows.vertices, record.b[n0:n1])
+    renumber_ids(rows.faces, record.killed[k0:k1])
+    renumber_ids(rows.faces, record.relabel[r0:r1])

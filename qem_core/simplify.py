@@ -64,7 +64,14 @@ from .page_advice import without_huge_page_advice
 from .prepare import MeshEdges, prepare_mesh_and_edges, unique_edges
 from .progressive import ProgressiveMesh
 from .record import grown, make_record, with_room_for
-from .rounds import contract_in_rounds, edges_by_part, in_input_order, spatial_order
+from .rounds import (
+    compacted,
+    contract_in_rounds,
+    edges_by_part,
+    in_input_order,
+    spatial_order,
+    write_back,
+)
 
 __all__ = [
     "ContractionRun",
@@ -300,7 +307,6 @@ def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
     scratch = _make_scratch(cx, options, wedges)
     params = _kernel_params(options)
     pairs = make_pairs(_pairs_for(vertices, edges, options.pair_threshold), n, edges.shape[0])
-    hood = make_neighbourhood(n)
     record = make_record(n, m, *cx.wedge_values.shape)
     budget = n if max_contractions is None else max(0, int(max_contractions))
     chunk = min(CHUNK_CONTRACTIONS, max(MIN_CHUNK_CONTRACTIONS, n // 16))
@@ -310,20 +316,29 @@ def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
             progress(min(1.0, done / max(1, n - 4)))
 
     done = 0
+    whole, live_rows = cx, None
     if in_rounds:
+        hood = make_neighbourhood(n)
         record, done = contract_in_rounds(cx, hood, pairs, record, params,
                                           lambda: _make_scratch(cx, options, None), chunk,
                                           report)
-    lists = make_face_lists(cx.faces, n, capacity=6 * m + 1024, alive=cx.face_alive)
+        if done:
+            # The serial loop runs on the live part alone, its rows together
+            # (rounds.compacted), and tells its work back after.
+            cx, live_rows = compacted(whole)
+            counts_before = record.counts.copy()
+    hood = make_neighbourhood(cx.vertices.shape[0])
+    lists = make_face_lists(cx.faces, cx.vertices.shape[0], capacity=6 * cx.faces.shape[0] + 1024,
+                            alive=cx.face_alive)
     # Candidates: the edges, then the pairs; their ids are the heap's ids.
     candidates = np.concatenate([edges, pairs.ends]) if pairs.ends.size else edges
-    heap = make_heap(candidates.shape[0])
+    heap = make_heap(candidates.shape[0] if live_rows is None else live_rows.edges.size)
     exact = options.error_mode == "exact"
     if _costs_are_geometric(options, wedges):
-        if done:
-            # All in part 0, every live face.
+        if live_rows is not None:
+            # After the rounds: all in part 0, every face live.
             ids, candidates, run_start, run_end = edges_by_part(
-                cx, hood.part, np.array([np.count_nonzero(cx.face_alive)]), edges.shape[0])
+                cx, hood.part, np.array([cx.faces.shape[0]]), live_rows.edges.size)
         else:
             ids = np.arange(candidates.shape[0], dtype=np.int64)
             run_start, run_end = np.zeros(1, np.int64), np.array([ids.size], np.int64)
@@ -355,7 +370,9 @@ def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
         else:
             assert status == STATUS_STEPS_DONE, status
         report(done)
-    return ContractionRun(record, cx, done)
+    if live_rows is not None:
+        write_back(cx, live_rows, whole, record, counts_before)
+    return ContractionRun(record, whole, done)
 
 
 def _look(cx: Complex, scratch: Scratch) -> tuple:

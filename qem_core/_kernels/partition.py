@@ -205,8 +205,8 @@ renumber_ids = numba.njit(cache=True, parallel=True)(_renumber_ids)
 
 
 def _move_rows(order, source, out):
-    """out[order[i]] = source[i] for every row i (order a permutation of the rows; out
-    not source). The rows of a permutation land all over ``out``: in threads, each
+    """out[order[i]] = source[i] for every row i (no two rows to one place; out not
+    source). The rows of a permutation land all over ``out``: in threads, each
     waits for its own memory (numpy's scatter took ~70 ms of the dragon's build for its
     faces and vertices)."""
     for i in numba.prange(source.shape[0]):
@@ -216,3 +216,38 @@ def _move_rows(order, source, out):
 
 
 move_rows = numba.njit(cache=True, parallel=True)(_move_rows)
+
+
+def _take_rows(rows, source, out):
+    """out[i] = source[rows[i]] for every row i of out: the live rows of a complex
+    together (rounds.compacted), in threads, each waiting for its own memory (numpy's
+    gather took ~25 ms after the dragon's rounds)."""
+    for i in numba.prange(out.shape[0]):
+        row = rows[i]
+        for k in range(out.shape[1]):
+            out[i, k] = source[row, k]
+
+
+take_rows = numba.njit(cache=True, parallel=True)(_take_rows)
+
+
+def _take_renumbered_rows(rows, source, new_id, out):
+    """out[i, k] = new_id[source[rows[i], k]]: `take_rows` of ids (corners, edge ids)
+    told in new numbers."""
+    for i in numba.prange(out.shape[0]):
+        row = rows[i]
+        for k in range(out.shape[1]):
+            out[i, k] = new_id[source[row, k]]
+
+
+take_renumbered_rows = numba.njit(cache=True, parallel=True)(_take_renumbered_rows)
+
+
+def _mark_used(rows, ids, used):
+    """used[ids[r, k]] = 1 for every row r in ``rows``: the edges of the live faces."""
+    for r in rows:
+        for k in range(ids.shape[1]):
+            used[ids[r, k]] = 1
+
+
+mark_used = numba.njit(cache=True)(_mark_used)

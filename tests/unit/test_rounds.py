@@ -254,6 +254,39 @@ def test_the_levels_do_not_depend_on_the_number_of_cores(small_rounds, monkeypat
     assert len(small_rounds) == 2
 
 
+@pytest.mark.parametrize("mesh, error_mode", [
+    (icosphere(4, jitter=0.1, seed=3), "additive"),
+    (perforated_icosphere(4, jitter=0.1, seed=3), "exact"),
+])
+def test_the_serial_loop_on_the_compacted_live_part_contracts_as_on_the_whole(
+        small_rounds, monkeypatch, mesh, error_mode):
+    """After the rounds the serial loop runs on the live part alone (rounds.compacted),
+    renumbered in order: every tie-break keeps its order, so the levels are those of the
+    loop on the whole complex, told back in its numbers (rounds.write_back)."""
+    vertices, faces = mesh
+    compacted_seen = []
+
+    def checked(cx):
+        live, rows = rounds.compacted(cx)
+        assert live.vertex_alive.all() and live.face_alive.all()
+        assert rows.vertices.size == np.count_nonzero(cx.vertex_alive) < cx.vertices.shape[0]
+        np.testing.assert_array_equal(rows.vertices[live.faces], cx.faces[rows.faces])
+        np.testing.assert_array_equal(rows.edges[live.face_edge], cx.face_edge[rows.faces])
+        compacted_seen.append(rows.vertices.size)
+        return live, rows
+
+    def whole(cx):
+        return cx, rounds.LiveRows(*(np.arange(size, dtype=np.int32) for size in (
+            cx.vertices.shape[0], cx.faces.shape[0], int(cx.face_edge.max()) + 1)))
+
+    monkeypatch.setattr("qem_core.simplify.compacted", checked)
+    on_live_part = qem_core.build(vertices, faces, {"error_mode": error_mode})
+    monkeypatch.setattr("qem_core.simplify.compacted", whole)
+    on_whole = qem_core.build(vertices, faces, {"error_mode": error_mode})
+    assert small_rounds and compacted_seen
+    assert same_levels(on_live_part, on_whole)
+
+
 def test_vertex_map_names_the_input_vertices_in_rounds(small_rounds):
     """Rounds contract the mesh in z-order; the levels still name the input's vertices."""
     vertices, faces = icosphere(4, jitter=0.05, seed=7)

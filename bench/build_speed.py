@@ -76,8 +76,11 @@ STAGES = (
     ("vertex -> face lists", "qem_core.simplify", "make_face_lists"),
     ("parallel rounds: cuts, heaps, the parts' loops in threads, merges", "qem_core.simplify",
      "contract_in_rounds"),
+    ("live part compacted for the serial loop (rounds.compacted)", "qem_core.simplify",
+     "compacted"),
     ("costs and heap of the serial loop (parallel)", "qem_core.simplify", "fill_heap"),
     ("serial contraction loop", "qem_core.simplify", "run_contractions"),
+    ("its work told back (rounds.write_back)", "qem_core.simplify", "write_back"),
     ("back to the input's numbering", "qem_core.simplify", "in_input_order"),
     ("assemble the progressive mesh", "qem_core.simplify", "_assemble"),
 )

@@ -440,11 +440,10 @@ def write_back(small: Complex, rows: LiveRows, cx: Complex, record: Record,
     the mesh (positions, faces, what is alive) and the record's rows after
     ``counts_before`` (its counts when the loop began). The loop's working state
     (quadrics, refusal marks, edge ids) is not told back: nothing after the loop reads
-    it (`in_input_order`). Renumbers small's faces in place."""
+    it (`in_input_order`)."""
     move_rows(rows.vertices, small.vertices, cx.vertices)
     cx.vertex_alive[rows.vertices] = small.vertex_alive
-    renumber_ids(rows.vertices, small.faces.reshape(-1))
-    move_rows(rows.faces, small.faces, cx.faces)
+    move_rows(rows.faces, rows.vertices[small.faces], cx.faces)
     cx.face_alive[rows.faces] = small.face_alive
     (n0, k0, r0), (n1, k1, r1) = counts_before[:3], record.counts[:3]
     renumber_ids(rows.vertices, record.a[n0:n1])

@@ -13,7 +13,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import rounds
-from ._kernels.adjacency import compact, make_face_lists
+from ._kernels.adjacency import compact, make_face_lists, sort_chunks
 from ._kernels.appearance import (
     N_SETTINGS,
     SETTING_UV_OFFSET,
@@ -186,7 +186,7 @@ def _initial_complex(vertices: np.ndarray, faces: np.ndarray, options: BuildOpti
     face_normals = np.zeros((m, 3))
     vertex_quadrics = np.zeros((n, QUADRIC_SIZE))
     fill_face_quadrics(vertices, faces, weighting, face_quadrics, face_normals,
-                       vertex_quadrics)
+                       vertex_quadrics, sort_chunks())
 
     edges, face_edge, edge_face_count, edge_side = mesh_edges
     border = np.flatnonzero(edge_face_count == 1)

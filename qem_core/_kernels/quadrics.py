@@ -69,8 +69,36 @@ def _evaluate(quadric, x, y, z):
 evaluate = numba.njit(cache=True, inline="always")(_evaluate)
 
 
+def _face_quadric(vertices, i0, i1, i2, weighting, quadric):
+    """The fundamental quadric of face (i0, i1, i2), written to ``quadric`` (10,);
+    returns its unit normal, (0, 0, 0) with a zero quadric for a zero-area face: it has
+    no plane."""
+    quadric[:] = 0.0
+    ux = vertices[i1, 0] - vertices[i0, 0]
+    uy = vertices[i1, 1] - vertices[i0, 1]
+    uz = vertices[i1, 2] - vertices[i0, 2]
+    vx = vertices[i2, 0] - vertices[i0, 0]
+    vy = vertices[i2, 1] - vertices[i0, 1]
+    vz = vertices[i2, 2] - vertices[i0, 2]
+    nx = uy * vz - uz * vy
+    ny = uz * vx - ux * vz
+    nz = ux * vy - uy * vx
+    length = np.sqrt(nx * nx + ny * ny + nz * nz)
+    if not length > 0.0:
+        return 0.0, 0.0, 0.0
+    nx /= length
+    ny /= length
+    nz /= length
+    offset = -(nx * vertices[i0, 0] + ny * vertices[i0, 1] + nz * vertices[i0, 2])
+    add_plane(quadric, nx, ny, nz, offset, area_weight(0.5 * length, weighting))
+    return nx, ny, nz
+
+
+face_quadric = numba.njit(cache=True, inline="always")(_face_quadric)
+
+
 def _fill_face_quadrics(vertices, faces, weighting, face_quadrics, face_normals,
-                        vertex_quadrics):
+                        vertex_quadrics, n_chunks):
     """Fundamental quadric and unit normal of every face, summed into its corners.
 
     vertices : (n, 3) float64; faces : (m, 3) int32.
@@ -79,43 +107,40 @@ def _fill_face_quadrics(vertices, faces, weighting, face_quadrics, face_normals,
     corners, face by face (the order of the sums is fixed: levels must be bit-identical).
     face_quadrics : (m, 10) float64 zeros, filled; or (0, 10) when the caller needs no
     face quadrics (the additive mode: 80 bytes a face not allocated, nor paged in).
-    A zero-area face gets a zero quadric and a zero normal: it has no plane.
+
+    In n_chunks threads, each owning a run of the vertex numbers: a thread goes through
+    every face in order and sums the quadric of each face with a corner of its own into
+    those corners, so every vertex still receives its faces' quadrics in face order, and
+    the sums do not depend on n_chunks. A face across two runs is priced by both; the
+    run of its corner 0 writes its normal and quadric.
     """
+    n = vertex_quadrics.shape[0]
     keep = face_quadrics.shape[0] > 0
-    quadric = np.zeros(QUADRIC_SIZE)
-    for f in range(faces.shape[0]):
-        quadric[:] = 0.0
-        i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
-        ux = vertices[i1, 0] - vertices[i0, 0]
-        uy = vertices[i1, 1] - vertices[i0, 1]
-        uz = vertices[i1, 2] - vertices[i0, 2]
-        vx = vertices[i2, 0] - vertices[i0, 0]
-        vy = vertices[i2, 1] - vertices[i0, 1]
-        vz = vertices[i2, 2] - vertices[i0, 2]
-        nx = uy * vz - uz * vy
-        ny = uz * vx - ux * vz
-        nz = ux * vy - uy * vx
-        length = np.sqrt(nx * nx + ny * ny + nz * nz)
-        if length > 0.0:
-            nx /= length
-            ny /= length
-            nz /= length
-            face_normals[f, 0] = nx
-            face_normals[f, 1] = ny
-            face_normals[f, 2] = nz
-            offset = -(nx * vertices[i0, 0] + ny * vertices[i0, 1] + nz * vertices[i0, 2])
-            weight = area_weight(0.5 * length, weighting)
-            add_plane(quadric, nx, ny, nz, offset, weight)
-        for k in range(3):
-            v = faces[f, k]
-            for d in range(QUADRIC_SIZE):
-                vertex_quadrics[v, d] += quadric[d]
-        if keep:
-            for d in range(QUADRIC_SIZE):
-                face_quadrics[f, d] = quadric[d]
+    for chunk in numba.prange(n_chunks):
+        low = n * chunk // n_chunks
+        high = n * (chunk + 1) // n_chunks
+        quadric = np.zeros(QUADRIC_SIZE)
+        for f in range(faces.shape[0]):
+            i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
+            own = low <= i0 < high
+            if not (own or low <= i1 < high or low <= i2 < high):
+                continue
+            nx, ny, nz = face_quadric(vertices, i0, i1, i2, weighting, quadric)
+            if own:
+                face_normals[f, 0] = nx
+                face_normals[f, 1] = ny
+                face_normals[f, 2] = nz
+                if keep:
+                    for d in range(QUADRIC_SIZE):
+                        face_quadrics[f, d] = quadric[d]
+            for k in range(3):
+                v = faces[f, k]
+                if low <= v < high:
+                    for d in range(QUADRIC_SIZE):
+                        vertex_quadrics[v, d] += quadric[d]
 
 
-fill_face_quadrics = numba.njit(cache=True)(_fill_face_quadrics)
+fill_face_quadrics = numba.njit(cache=True, parallel=True)(_fill_face_quadrics)
 
 
 def _boundary_quadric(vertices, a, b, face_normal, weighting, boundary_weight, out):

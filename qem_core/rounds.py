@@ -399,6 +399,7 @@ def compacted(cx: Complex) -> tuple[Complex, LiveRows]:
     An order-keeping renumbering changes no tie-break (equal costs are ordered by their
     ends' numbers, lists by face number), so the loop makes the same contractions.
     Geometric costs only (no appearance attributes: the rounds run without them)."""
+    assert cx.face_wedges.shape[0] == 0, "the rounds run without appearance attributes"
     live_vertices = np.flatnonzero(cx.vertex_alive).astype(np.int32)
     live_faces = np.flatnonzero(cx.face_alive).astype(np.int32)
     vertex_row = np.full(cx.vertices.shape[0], -1, np.int32)
@@ -413,8 +414,9 @@ def compacted(cx: Complex) -> tuple[Complex, LiveRows]:
         if values.shape[0] == 0:  # a field the mode does not use
             return values
         out = np.empty((rows.size,) + values.shape[1:], values.dtype)
+        width = int(np.prod(values.shape[1:]))
         if new_id is None:
-            take_rows(rows, values.reshape(values.shape[0], -1), out.reshape(rows.size, -1))
+            take_rows(rows, values.reshape(values.shape[0], width), out.reshape(rows.size, width))
         else:
             take_renumbered_rows(rows, values, new_id, out)
         return out

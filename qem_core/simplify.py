@@ -316,18 +316,20 @@ def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
             progress(min(1.0, done / max(1, n - 4)))
 
     done = 0
-    whole, live_rows = cx, None
+    hood = make_neighbourhood(n)
+    whole, live_rows, counts_before = cx, None, None
     if in_rounds:
-        hood = make_neighbourhood(n)
         record, done = contract_in_rounds(cx, hood, pairs, record, params,
                                           lambda: _make_scratch(cx, options, None), chunk,
                                           report)
         if done:
             # The serial loop runs on the live part alone, its rows together
-            # (rounds.compacted), and tells its work back after.
+            # (rounds.compacted), and tells its work back after. No pairs in rounds: the
+            # pairs' ids would start past the compacted edges' (contract_greedily).
+            assert pairs.ends.size == 0
             cx, live_rows = compacted(whole)
+            hood = make_neighbourhood(cx.vertices.shape[0])
             counts_before = record.counts.copy()
-    hood = make_neighbourhood(cx.vertices.shape[0])
     lists = make_face_lists(cx.faces, cx.vertices.shape[0], capacity=6 * cx.faces.shape[0] + 1024,
                             alive=cx.face_alive)
     # Candidates: the edges, then the pairs; their ids are the heap's ids.

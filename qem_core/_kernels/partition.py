@@ -233,7 +233,8 @@ take_rows = numba.njit(cache=True, parallel=True)(_take_rows)
 
 def _take_renumbered_rows(rows, source, new_id, out):
     """out[i, k] = new_id[source[rows[i], k]]: `take_rows` of ids (corners, edge ids)
-    told in new numbers."""
+    told in new numbers. Every id taken must have a new number (>= 0): unlike
+    `renumber_ids`, -1 is not kept, and nothing is bounds-checked."""
     for i in numba.prange(out.shape[0]):
         row = rows[i]
         for k in range(out.shape[1]):

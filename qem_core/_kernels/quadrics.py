@@ -111,10 +111,12 @@ def _fill_face_quadrics(vertices, faces, weighting, face_quadrics, face_normals,
     In n_chunks threads, each owning a run of the vertex numbers: a thread goes through
     every face in order and sums the quadric of each face with a corner of its own into
     those corners, so every vertex still receives its faces' quadrics in face order, and
-    the sums do not depend on n_chunks. A face across two runs is priced by both; the
-    run of its corner 0 writes its normal and quadric.
+    the sums do not depend on n_chunks (at least 1). A face across runs is priced by
+    every run that owns one of its corners; the run of its corner 0 writes its normal
+    and quadric.
     """
     n = vertex_quadrics.shape[0]
+    n_chunks = max(n_chunks, 1)
     keep = face_quadrics.shape[0] > 0
     for chunk in numba.prange(n_chunks):
         low = n * chunk // n_chunks

@@ -276,6 +276,8 @@ def test_the_serial_loop_on_the_compacted_live_part_contracts_as_on_the_whole(
         return live, rows
 
     def whole(cx):
+        # The identity: the loop runs on cx itself, and telling back moves each row onto
+        # itself (move_rows with out = source is safe for the identity order).
         return cx, rounds.LiveRows(*(np.arange(size, dtype=np.int32) for size in (
             cx.vertices.shape[0], cx.faces.shape[0], int(cx.face_edge.max()) + 1)))
 
@@ -285,6 +287,42 @@ def test_the_serial_loop_on_the_compacted_live_part_contracts_as_on_the_whole(
     on_whole = qem_core.build(vertices, faces, {"error_mode": error_mode})
     assert small_rounds and compacted_seen
     assert same_levels(on_live_part, on_whole)
+
+
+@pytest.mark.parametrize("error_mode", ["additive", "exact"])
+def test_compacting_keeps_the_live_rows_in_order_and_may_find_none(error_mode):
+    """`rounds.compacted` of a complex with some rows dead takes the live ones in order
+    (their faces and edge ids renumbered); with every row dead, empty arrays of the
+    same widths."""
+    from qem_core.options import BuildOptions
+    from qem_core.simplify import _initial_complex
+
+    vertices, faces = icosphere(1)
+    options = BuildOptions(error_mode=error_mode)
+    cx, _ = _initial_complex(np.asarray(vertices, np.float64), np.asarray(faces, np.int32),
+                             options, unique_edges(faces, len(vertices)), None, owned=False)
+    dead_vertex = 5
+    cx.face_alive[np.any(cx.faces == dead_vertex, axis=1)] = 0
+    cx.vertex_alive[dead_vertex] = 0
+    live, rows = rounds.compacted(cx)
+    assert rows.vertices.tolist() == [v for v in range(len(vertices)) if v != dead_vertex]
+    assert rows.faces.tolist() == np.flatnonzero(cx.face_alive).tolist()
+    np.testing.assert_array_equal(rows.vertices[live.faces], cx.faces[rows.faces])
+    np.testing.assert_array_equal(live.vertex_quadrics, cx.vertex_quadrics[rows.vertices])
+    if error_mode == "exact":
+        np.testing.assert_array_equal(live.face_quadrics, cx.face_quadrics[rows.faces])
+        np.testing.assert_array_equal(live.edge_quadrics, cx.edge_quadrics[rows.edges])
+    else:  # the additive mode keeps neither
+        assert live.face_quadrics.shape[0] == live.edge_quadrics.shape[0] == 0
+    assert sorted(set(live.face_edge.ravel().tolist())) == list(range(rows.edges.size))
+
+    cx.face_alive[:] = 0
+    cx.vertex_alive[:] = 0
+    empty, none = rounds.compacted(cx)
+    assert none.vertices.size == none.faces.size == none.edges.size == 0
+    for name in ("vertices", "vertex_quadrics", "faces", "face_normals", "face_edge",
+                 "face_quadrics", "edge_quadrics"):
+        assert getattr(empty, name).shape == (0,) + getattr(cx, name).shape[1:], name
 
 
 def test_vertex_map_names_the_input_vertices_in_rounds(small_rounds):

@@ -64,14 +64,12 @@ from ._kernels.pairs import Pairs
 from ._kernels.partition import (
     faces_by_lowest_corner,
     freeze_band,
-    mark_used,
     morton_codes,
     move_rows,
     order_by_code,
     part_edges,
     renumber_edges,
     renumber_ids,
-    take_renumbered_rows,
     take_rows,
 )
 from ._kernels.setup import fill_heap
@@ -182,11 +180,7 @@ def in_input_order(run_record: Record, cx: Complex, vertex_order: np.ndarray,
     def left_out(values: np.ndarray) -> np.ndarray:
         return np.zeros((0,) + values.shape[1:], values.dtype)
 
-    n_contractions, n_killed, n_relabel = (int(c) for c in run_record.counts[:3])
-    renumber(vertex_order, run_record.a[:n_contractions])
-    renumber(vertex_order, run_record.b[:n_contractions])
-    renumber(face_order, run_record.killed[:n_killed])
-    renumber(face_order, run_record.relabel[:n_relabel])
+    _renumber_record(run_record, vertex_order, face_order, since=np.zeros(3, np.int64))
     renumber(vertex_order, cx.faces)
     for values in (cx.vertices, cx.vertex_alive):
         move(vertex_order, values)
@@ -195,6 +189,18 @@ def in_input_order(run_record: Record, cx: Complex, vertex_order: np.ndarray,
     working = ("vertex_quadrics", "vertex_refused", "face_normals", "face_quadrics",
                "face_edge", "edge_quadrics", "face_wedges")
     return run_record, cx._replace(**{name: left_out(getattr(cx, name)) for name in working})
+
+
+def _renumber_record(record: Record, vertex_ids: np.ndarray, face_ids: np.ndarray,
+                     since: np.ndarray) -> None:
+    """Tell the record's rows after its counts ``since`` (contractions, killed faces,
+    relabelled faces) in other numbers: vertex v becomes vertex_ids[v], face f
+    face_ids[f]."""
+    (j0, k0, r0), (j1, k1, r1) = since[:3], record.counts[:3]
+    renumber_ids(vertex_ids, record.a[j0:j1])
+    renumber_ids(vertex_ids, record.b[j0:j1])
+    renumber_ids(face_ids, record.killed[k0:k1])
+    renumber_ids(face_ids, record.relabel[r0:r1])
 
 
 def edges_by_part(cx: Complex, part: np.ndarray, faces_in_part: np.ndarray, n_edge_ids: int
@@ -400,40 +406,44 @@ def compacted(cx: Complex) -> tuple[Complex, LiveRows]:
     ends' numbers, lists by face number), so the loop makes the same contractions.
     Geometric costs only (no appearance attributes: the rounds run without them)."""
     assert cx.face_wedges.shape[0] == 0, "the rounds run without appearance attributes"
-    live_vertices = np.flatnonzero(cx.vertex_alive).astype(np.int32)
+    live_vertices, vertex_row = _live_rows(cx.vertex_alive)
     live_faces = np.flatnonzero(cx.face_alive).astype(np.int32)
-    vertex_row = np.full(cx.vertices.shape[0], -1, np.int32)
-    vertex_row[live_vertices] = np.arange(live_vertices.size, dtype=np.int32)
-    edge_used = np.zeros(int(cx.face_edge.max()) + 1 if cx.face_edge.size else 0, np.uint8)
-    mark_used(live_faces, cx.face_edge, edge_used)
-    live_edges = np.flatnonzero(edge_used).astype(np.int32)
-    edge_row = np.cumsum(edge_used, dtype=np.int32) - 1
 
-    def take(rows: np.ndarray, values: np.ndarray, new_id: np.ndarray | None = None
-             ) -> np.ndarray:
+    def take(rows: np.ndarray, values: np.ndarray) -> np.ndarray:
         if values.shape[0] == 0:  # a field the mode does not use
             return values
         out = np.empty((rows.size,) + values.shape[1:], values.dtype)
         width = int(np.prod(values.shape[1:]))
-        if new_id is None:
-            take_rows(rows, values.reshape(values.shape[0], width), out.reshape(rows.size, width))
-        else:
-            take_renumbered_rows(rows, values, new_id, out)
+        take_rows(rows, values.reshape(values.shape[0], width), out.reshape(rows.size, width))
         return out
 
+    faces = take(live_faces, cx.faces)
+    renumber_ids(vertex_row, faces.reshape(-1))
+    face_edge = take(live_faces, cx.face_edge)
+    edge_used = np.zeros(int(cx.face_edge.max()) + 1 if cx.face_edge.size else 0, np.uint8)
+    edge_used[face_edge] = 1
+    live_edges, edge_row = _live_rows(edge_used)
+    renumber_ids(edge_row, face_edge.reshape(-1))
     small = cx._replace(
         vertices=take(live_vertices, cx.vertices),
         vertex_quadrics=take(live_vertices, cx.vertex_quadrics),
         vertex_alive=cx.vertex_alive[live_vertices],
         vertex_refused=cx.vertex_refused[live_vertices],
-        faces=take(live_faces, cx.faces, vertex_row),
+        faces=faces,
         face_alive=cx.face_alive[live_faces],
         face_normals=take(live_faces, cx.face_normals),
         face_quadrics=take(live_faces, cx.face_quadrics),
-        face_edge=take(live_faces, cx.face_edge, edge_row),
+        face_edge=face_edge,
         edge_quadrics=take(live_edges, cx.edge_quadrics),
     )
     return small, LiveRows(live_vertices, live_faces, live_edges)
+
+
+def _live_rows(flags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rows set in ``flags`` (0/1), and each row's number among them (a row not set
+    gets the previous set row's, or -1: never read, since no live face names it)."""
+    return (np.flatnonzero(flags).astype(np.int32),
+            np.cumsum(flags, dtype=np.int32) - 1)
 
 
 def write_back(small: Complex, rows: LiveRows, cx: Complex, record: Record,
@@ -447,8 +457,4 @@ def write_back(small: Complex, rows: LiveRows, cx: Complex, record: Record,
     cx.vertex_alive[rows.vertices] = small.vertex_alive
     move_rows(rows.faces, rows.vertices[small.faces], cx.faces)
     cx.face_alive[rows.faces] = small.face_alive
-    (n0, k0, r0), (n1, k1, r1) = counts_before[:3], record.counts[:3]
-    renumber_ids(rows.vertices, record.a[n0:n1])
-    renumber_ids(rows.vertices, record.b[n0:n1])
-    renumber_ids(rows.faces, record.killed[k0:k1])
-    renumber_ids(rows.faces, record.relabel[r0:r1])
+    _renumber_record(record, rows.vertices, rows.faces, since=counts_before)

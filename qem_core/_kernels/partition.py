@@ -230,25 +230,3 @@ def _take_rows(rows, source, out):
 
 take_rows = numba.njit(cache=True, parallel=True)(_take_rows)
 
-
-def _take_renumbered_rows(rows, source, new_id, out):
-    """out[i, k] = new_id[source[rows[i], k]]: `take_rows` of ids (corners, edge ids)
-    told in new numbers. Every id taken must have a new number (>= 0): unlike
-    `renumber_ids`, -1 is not kept, and nothing is bounds-checked."""
-    for i in numba.prange(out.shape[0]):
-        row = rows[i]
-        for k in range(out.shape[1]):
-            out[i, k] = new_id[source[row, k]]
-
-
-take_renumbered_rows = numba.njit(cache=True, parallel=True)(_take_renumbered_rows)
-
-
-def _mark_used(rows, ids, used):
-    """used[ids[r, k]] = 1 for every row r in ``rows``: the edges of the live faces."""
-    for r in rows:
-        for k in range(ids.shape[1]):
-            used[ids[r, k]] = 1
-
-
-mark_used = numba.njit(cache=True)(_mark_used)

@@ -10,9 +10,12 @@ the build call (or the peer's simplify call) alone. qem-lod is measured five way
   build compiles every kernel: compile + run.
 - **warm cache**: --runs runs with that folder now filled: loading the cached machine
   code + run. What a fresh worker process pays for its first build.
-- **hot**: --runs runs, each after an untimed build of a tiny mesh in the same process
-  (`bench.qem_lod.warm_up_build`): the run alone, the figure to set against the peers,
-  whose code is compiled ahead of time and loaded by an untimed warm-up call too.
+- **hot**: --runs runs, each after `qem_core.warm_up()` and an untimed build of a tiny
+  mesh in the same process (`bench.qem_lod.warm_up_build`), so every kernel is loaded:
+  the run alone, the figure to set against the peers, whose code is compiled ahead of
+  time and loaded by an untimed warm-up call too. (Until 2026-12-03 the tiny build alone
+  came first, which does not reach the parallel rounds' kernels: hot builds loaded those
+  from the cache in their timed call, 60-90 ms on dragon.)
 - **hot without rounds**: the same with `parallel_rounds=false`, one strictly greedy
   sequence: what the parallel rounds (qem_core/rounds.py) gain, in the same run.
 - **second build**: --runs runs, each after an untimed build of the same mesh in the
@@ -368,7 +371,8 @@ def write_build_speed_report(path: Path, entry: dict[str, Any]) -> None:
         "the whole forest (every contraction down to the base mesh) with options "
         f"`{settings['qem_options'] or 'defaults'}`: cold = empty NUMBA_CACHE_DIR (compile "
         "+ run), warm cache = the same cache dir afterwards (cache load + run), hot = after "
-        "an untimed build of a 22-vertex mesh in the same process (run alone); "
+        "`qem_core.warm_up()` (every kernel loaded) and an untimed build of a 22-vertex "
+        "mesh in the same process (run alone); "
         "`parallel_rounds=False` is the same build as one strictly greedy sequence; second "
         "build = after an untimed build of the same mesh in the same process. The peers "
         f"simplify once to {settings['peer_fraction']:g} of the referenced vertices "

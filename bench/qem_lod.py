@@ -99,8 +99,13 @@ def build_progressive_mesh(vertices: np.ndarray, faces: np.ndarray, option_value
 
 
 def warm_up_build(option_values: OptionValues) -> None:
-    """Build and extract a small mesh once, so numba compiles (or loads from its cache)
-    before a timed build. Run it as `measure_in_child(..., before=warm_up_build)`."""
+    """`qem_core.warm_up()`, then build and extract a tiny mesh with the options, so numba
+    has compiled (or loaded from its cache) every kernel before a timed build, those of
+    the parallel rounds included, which a small build does not reach. Run it as
+    `measure_in_child(..., before=warm_up_build)`."""
+    import qem_core
+
+    qem_core.warm_up()
     vertices, faces = warm_up_mesh()
     progressive_mesh = build_progressive_mesh(vertices, faces, option_values)
     progressive_mesh.lod(progressive_mesh.n_base)

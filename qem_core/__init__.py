@@ -26,6 +26,7 @@ from .progressive import (
 )
 from .qpm import load
 from .simplify import build
+from .warm_up import warm_up
 
 
 def build_mesh(mesh: Mesh, options=None, progress=None) -> ProgressiveMesh:
@@ -58,4 +59,5 @@ __all__ = [
     "encode_mesh",
     "load",
     "load_mesh",
+    "warm_up",
 ]

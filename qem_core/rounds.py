@@ -300,19 +300,22 @@ def _cut(cx: Complex, part: np.ndarray, n_parts: int, shift: float
 
 def contract_in_rounds(cx: Complex, hood: Neighbourhood, pairs: Pairs, record: Record,
                        params: np.ndarray, make_scratch: Callable[[], Scratch], chunk: int,
-                       report: Callable[[int], None]) -> tuple[Record, int]:
-    """Contract in parallel rounds (module docstring) while more than
-    PARALLEL_MIN_VERTICES vertices are live. Appends to ``record``; returns it (grown
+                       report: Callable[[int], None], min_live: int | None = None
+                       ) -> tuple[Record, int]:
+    """Contract in parallel rounds (module docstring) while more than ``min_live``
+    (default PARALLEL_MIN_VERTICES) vertices are live. Appends to ``record``; returns it (grown
     if it had to be) and the number of contractions. ``report(contractions so far)``
     is called from this thread while the loops run (`_run_loops`). Leaves ``hood.part``
     all 0."""
+    if min_live is None:
+        min_live = PARALLEL_MIN_VERTICES
     done = 0
     # A contraction never makes an edge id: the first round's bound holds for them all.
     n_edge_ids = int(cx.face_edge.max()) + 1 if cx.face_edge.size else 0
     with ThreadPoolExecutor(os.cpu_count() or 1) as executor:
         for round_index in range(MAX_ROUNDS):
             n_live = int(np.count_nonzero(cx.vertex_alive))
-            if n_live <= PARALLEL_MIN_VERTICES:
+            if n_live <= min_live:
                 break
             restart_generations(hood)
             n_parts = min(MAX_PARTS, max(2, round(n_live / PART_VERTICES)))

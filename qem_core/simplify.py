@@ -260,6 +260,7 @@ def contract_greedily(
     max_contractions: int | None = None,
     mesh_edges: MeshEdges | None = None,
     wedges: Wedges | None = None,
+    rounds_above: int | None = None,
 ) -> ContractionRun:
     """Contract edges (and, with ``options.pair_threshold``, near vertex pairs) greedily
     by quadric error until nothing valid is left.
@@ -269,10 +270,14 @@ def contract_greedily(
     tests use it to compare a level of detail with the greedy run stopped there).
     ``mesh_edges``: the edges of ``faces`` if already found (`prepare_mesh_and_edges`).
     ``wedges``: appearance attributes (attributes.py), kept in Hoppe's quadric.
+    ``rounds_above``: parallel rounds run while more vertices than this are live
+    (default `rounds.PARALLEL_MIN_VERTICES`; `warm_up` lowers it for a small mesh).
     """
+    if rounds_above is None:
+        rounds_above = rounds.PARALLEL_MIN_VERTICES
     if (options.parallel_rounds and _costs_are_geometric(options, wedges)
             and options.pair_threshold == 0.0 and max_contractions is None
-            and vertices.shape[0] > rounds.PARALLEL_MIN_VERTICES):
+            and vertices.shape[0] > rounds_above):
         # Parallel rounds (rounds.py), on the mesh in z-order.
         if mesh_edges is None:
             mesh_edges = unique_edges(faces, vertices.shape[0])
@@ -280,11 +285,11 @@ def contract_greedily(
             vertices, faces, mesh_edges)
         ordered_vertices = np.asarray(vertices, np.float64)[vertex_order]  # a new C array
         run = _contract(ordered_vertices, ordered_faces, options, progress, None,
-                        ordered_edges, None, in_rounds=True)
+                        ordered_edges, None, rounds_above=rounds_above)
         record, cx = in_input_order(run.record, run.complex, vertex_order, face_order)
         return ContractionRun(record, cx, run.n_contractions)
     return _contract(vertices, faces, options, progress, max_contractions, mesh_edges, wedges,
-                     in_rounds=False)
+                     rounds_above=None)
 
 
 def _costs_are_geometric(options: BuildOptions, wedges: Wedges | None) -> bool:
@@ -297,8 +302,10 @@ def _costs_are_geometric(options: BuildOptions, wedges: Wedges | None) -> bool:
 def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
               progress: ProgressCallback | None, max_contractions: int | None,
               mesh_edges: MeshEdges | None, wedges: Wedges | None,
-              in_rounds: bool) -> ContractionRun:
-    """`contract_greedily`, in parallel rounds first if ``in_rounds``."""
+              rounds_above: int | None) -> ContractionRun:
+    """`contract_greedily`, in parallel rounds first while more than ``rounds_above``
+    vertices are live (None: no rounds)."""
+    in_rounds = rounds_above is not None
     n, m = vertices.shape[0], faces.shape[0]
     if mesh_edges is None:
         mesh_edges = unique_edges(faces, n)
@@ -321,7 +328,7 @@ def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
     if in_rounds:
         record, done = contract_in_rounds(cx, hood, pairs, record, params,
                                           lambda: _make_scratch(cx, options, None), chunk,
-                                          report)
+                                          report, min_live=rounds_above)
         if done:
             # The serial loop runs on the live part alone, its rows together
             # (rounds.compacted), and tells its work back after. No pairs in rounds: the

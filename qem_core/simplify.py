@@ -182,9 +182,10 @@ def _initial_complex(vertices: np.ndarray, faces: np.ndarray, options: BuildOpti
     weighting = WEIGHTING_CODES[options.weighting]
     exact = options.error_mode == "exact"
     # Only the exact mode reads face quadrics again (merging edge quadrics).
-    face_quadrics = np.zeros((m if exact else 0, QUADRIC_SIZE))
-    face_normals = np.zeros((m, 3))
-    vertex_quadrics = np.zeros((n, QUADRIC_SIZE))
+    # Uninitialised: the kernel writes every row of each (quadrics.py).
+    face_quadrics = np.empty((m if exact else 0, QUADRIC_SIZE))
+    face_normals = np.empty((m, 3))
+    vertex_quadrics = np.empty((n, QUADRIC_SIZE))
     fill_face_quadrics(vertices, faces, weighting, face_quadrics, face_normals,
                        vertex_quadrics, sort_chunks())
 

@@ -133,7 +133,7 @@ def _find_edges(faces, n_vertices, face_edge, edges, edge_face_count, edge_side,
     faces : (m, 3) int32. Side k of face f runs from corner k to corner k + 1.
     face_edge : (m, 3) int32 out, the edge of each side.
     edges : (>= E, 2) int32 out, (low, high) of each edge, low < high.
-    edge_face_count : (>= E,) int32 zeros, out: the faces on each edge.
+    edge_face_count : (>= E,) int32 out: the faces on each edge.
     edge_side : (>= E,) int64 out: the last side (3 f + k) on each edge.
     duplicate : (m,) uint8 zeros, out, or (0,) for no search: 1 for each face with the
     same three corners as an earlier face. Two such faces share all three edges, so
@@ -201,6 +201,7 @@ def _find_edges(faces, n_vertices, face_edge, edges, edge_face_count, edge_side,
                 e += 1
                 edges[e, 0] = low
                 edges[e, 1] = high
+                edge_face_count[e] = 0  # written before it is read: no zeroed pages
                 edge_start = i
             s = high_and_side[i] & LOW_32_BITS
             face_edge[s // 3, s % 3] = e

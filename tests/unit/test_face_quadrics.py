@@ -11,10 +11,11 @@ from tests import reference
 
 
 def filled(vertices, faces, weighting, n_chunks, keep_face_quadrics=True):
+    # NaN where the kernel must write: it takes its arrays uninitialised.
     n, m = vertices.shape[0], faces.shape[0]
-    face_quadrics = np.zeros((m if keep_face_quadrics else 0, QUADRIC_SIZE))
-    face_normals = np.zeros((m, 3))
-    vertex_quadrics = np.zeros((n, QUADRIC_SIZE))
+    face_quadrics = np.full((m if keep_face_quadrics else 0, QUADRIC_SIZE), np.nan)
+    face_normals = np.full((m, 3), np.nan)
+    vertex_quadrics = np.full((n, QUADRIC_SIZE), np.nan)
     fill_face_quadrics(vertices, faces, WEIGHTING_CODES[weighting], face_quadrics,
                        face_normals, vertex_quadrics, n_chunks)
     return face_quadrics, face_normals, vertex_quadrics

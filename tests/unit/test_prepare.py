@@ -236,7 +236,8 @@ def test_edges_are_numbered_in_end_order_whatever_the_chunks(drawn, n_chunks):
     expected = sorted(sides)
     m = faces.shape[0]
     face_edge, edges = np.full((m, 3), -1, np.int32), np.full((3 * m, 2), -1, np.int32)
-    counts, last_side = np.zeros(3 * m, np.int32), np.full(3 * m, -1, np.int64)
+    # Garbage where the kernel must write first: it takes its counts uninitialised.
+    counts, last_side = np.full(3 * m, -7, np.int32), np.full(3 * m, -1, np.int64)
     n_edges, _ = find_edges(faces, n, face_edge, edges, counts, last_side, n_chunks,
                             np.zeros(0, np.uint8))
     assert n_edges == len(expected)

@@ -80,6 +80,7 @@ __all__ = [
     "PARALLEL_MIN_VERTICES",
     "PART_VERTICES",
     "LiveRows",
+    "RoundArrays",
     "compacted",
     "contract_in_rounds",
     "in_input_order",
@@ -110,6 +111,25 @@ REPORT_INTERVAL_S = 0.1
 # Room in a part's face-list pool for the runs its contractions write, per vertex of
 # the part (a loop of a round may not compact its pool: see contract.PARAM_SHARED_COMPLEX).
 POOL_ROOM_PER_VERTEX = 16
+
+
+class RoundArrays:
+    """The working arrays of a build's rounds, each kept for the next round: a round's
+    are no larger than the first's (the live vertices, faces and edges only shrink), and
+    a fresh array's pages are faulted in on first touch, several microseconds a page on
+    these machines, where a kept array's are in memory already. `empty` hands out an
+    uninitialised view of the array kept under a name, made (or made larger) when it
+    is too small. Without reuse (a `RoundArrays` made for one call) it is np.empty."""
+
+    def __init__(self) -> None:
+        self._kept: dict[str, np.ndarray] = {}
+
+    def empty(self, name: str, shape: tuple[int, ...], dtype: type) -> np.ndarray:
+        size = int(np.prod(shape))
+        kept = self._kept.get(name)
+        if kept is None or kept.size < size or kept.dtype != dtype:
+            kept = self._kept[name] = np.empty(size, dtype)
+        return kept[:size].reshape(shape)
 
 
 # Bits per axis of the Morton code of `spatial_order`.
@@ -203,7 +223,8 @@ def _renumber_record(record: Record, vertex_ids: np.ndarray, face_ids: np.ndarra
     renumber_ids(face_ids, record.relabel[r0:r1])
 
 
-def edges_by_part(cx: Complex, part: np.ndarray, faces_in_part: np.ndarray, n_edge_ids: int
+def edges_by_part(cx: Complex, part: np.ndarray, faces_in_part: np.ndarray, n_edge_ids: int,
+                  arrays: RoundArrays | None = None
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The edges of the live faces with both ends in one part p < faces_in_part.size
     (``part`` as `Neighbourhood.part`): (ids (R,) int64, ends (R, 2) int32, run_start,
@@ -211,11 +232,13 @@ def edges_by_part(cx: Complex, part: np.ndarray, faces_in_part: np.ndarray, n_ed
     the rows between the runs unwritten.
     faces_in_part : the live faces with all corners in each part (or more): their three
     sides each are the room for its edges, so they are found in one pass, not counted
-    first; R is that room. n_edge_ids: more than any edge id of ``cx``."""
+    first; R is that room. n_edge_ids: more than any edge id of ``cx``.
+    ``arrays``: where ids and ends are taken from (fresh ones if None)."""
+    arrays = arrays or RoundArrays()
     room = 3 * faces_in_part.astype(np.int64)
     run_start = np.concatenate([[0], np.cumsum(room)[:-1]]).astype(np.int64)
-    ids = np.empty(int(room.sum()), np.int64)
-    ends = np.empty((ids.size, 2), np.int32)
+    ids = arrays.empty("edge ids", (int(room.sum()),), np.int64)
+    ends = arrays.empty("edge ends", (ids.size, 2), np.int32)
     found = np.zeros(room.size, np.int64)
     part_edges(cx.faces, cx.face_alive, cx.face_edge, part, n_edge_ids, run_start,
                run_start + room, ids, ends, found)
@@ -312,6 +335,7 @@ def contract_in_rounds(cx: Complex, hood: Neighbourhood, pairs: Pairs, record: R
     done = 0
     # A contraction never makes an edge id: the first round's bound holds for them all.
     n_edge_ids = int(cx.face_edge.max()) + 1 if cx.face_edge.size else 0
+    arrays = RoundArrays()
     with ThreadPoolExecutor(os.cpu_count() or 1) as executor:
         for round_index in range(MAX_ROUNDS):
             n_live = int(np.count_nonzero(cx.vertex_alive))
@@ -320,7 +344,7 @@ def contract_in_rounds(cx: Complex, hood: Neighbourhood, pairs: Pairs, record: R
             restart_generations(hood)
             n_parts = min(MAX_PARTS, max(2, round(n_live / PART_VERTICES)))
             loops = _start_round(executor, cx, hood, pairs, params, make_scratch, n_parts,
-                                 0.5 * (round_index % 2), n_edge_ids)
+                                 0.5 * (round_index % 2), n_edge_ids, arrays)
             if loops is None:
                 break
             round_done = _run_loops(executor, loops, chunk,
@@ -336,9 +360,11 @@ def contract_in_rounds(cx: Complex, hood: Neighbourhood, pairs: Pairs, record: R
 
 def _start_round(executor: ThreadPoolExecutor, cx: Complex, hood: Neighbourhood, pairs: Pairs,
                  params: np.ndarray, make_scratch: Callable[[], Scratch], n_parts: int,
-                 shift: float, n_edge_ids: int) -> list[_PartLoop] | None:
+                 shift: float, n_edge_ids: int, arrays: RoundArrays
+                 ) -> list[_PartLoop] | None:
     """Cut the complex (`_cut`) and set up one loop per part; None if no part has a
-    candidate. n_edge_ids: more than any edge id of ``cx``."""
+    candidate. n_edge_ids: more than any edge id of ``cx``. The pool, the edges and the
+    heaps are taken from ``arrays``, the previous round's kept."""
     n = cx.vertices.shape[0]
     vertices_in_part, faces_in_part = _cut(cx, hood.part, n_parts, shift)
     # One pool: the runs of the live faces, then a region per part for the runs its
@@ -347,22 +373,26 @@ def _start_round(executor: ThreadPoolExecutor, cx: Complex, hood: Neighbourhood,
     # own vertices'.
     room = [POOL_ROOM_PER_VERTEX * int(vertices_in_part[p]) + 1024 for p in range(n_parts)]
     used = 3 * int(np.count_nonzero(cx.face_alive))
-    lists = make_face_lists(cx.faces, n, capacity=used + sum(room), alive=cx.face_alive)
+    capacity = used + sum(room)
+    lists = make_face_lists(cx.faces, n, capacity, alive=cx.face_alive,
+                            pool=arrays.empty("pool", (capacity,), np.int32))
     # The parts' heaps are runs of one array, each the room of its part's edges (a heap
     # never holds more: an edge is in it at most once, and a loop adds only edges of its
     # part), filled at once (in parallel). ``position`` is shared: the ids are disjoint.
     ids, ends, run_start, run_end = edges_by_part(cx, hood.part, faces_in_part[:n_parts],
-                                                  n_edge_ids)
+                                                  n_edge_ids, arrays)
     runs = [slice(start, end)
             for start, end in zip(run_start.tolist(), run_end.tolist(), strict=True)]
     n_edges = int((run_end - run_start).sum())
     if n_edges == 0:
         return None
-    entries = np.empty((ids.size, 3), np.int64)  # the runs' rows are written: no zeros
-    position = np.full(n_edge_ids, -1, np.int32)
+    entries = arrays.empty("heap entries", (ids.size, 3), np.int64)  # the runs' rows written
+    position = arrays.empty("heap positions", (n_edge_ids,), np.int32)
+    position.fill(-1)
     fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, ends, ids, run_start, run_end,
               params[PARAM_EXACT] != 0.0, params[PARAM_RANK_TOLERANCE], entries)
-    keys = np.concatenate([entries[run, 0] for run in runs])  # a copy: partitioned in place
+    keys = arrays.empty("keys", (n_edges,), np.int64)  # a copy: partitioned in place
+    np.concatenate([entries[run, 0] for run in runs], out=keys)
     k = int(STOP_QUANTILE * (n_edges - 1))
     keys.partition(k)
     stop_key = keys[k]

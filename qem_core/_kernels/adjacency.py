@@ -83,15 +83,20 @@ chunk_starts = numba.njit(cache=True)(_chunk_starts)
 
 
 def make_face_lists(faces: np.ndarray, n_vertices: int, capacity: int,
-                    alive: np.ndarray | None = None) -> FaceLists:
+                    alive: np.ndarray | None = None, pool: np.ndarray | None = None
+                    ) -> FaceLists:
     """CSR vertex -> incident faces (each run in increasing face order), in a pool of
     ``capacity`` (>= faces.size) slots. faces : (m, c) int32, c corners per item;
-    ``alive`` (m,) uint8: list only those items (all if None)."""
+    ``alive`` (m,) uint8: list only those items (all if None). ``pool``: (capacity,)
+    int32 to fill, its contents ignored (a fresh one if None)."""
     count = np.zeros(n_vertices, np.int32)
     start = np.zeros(n_vertices, np.int64)
     # Uninitialised: only the runs are ever read, and the pool's room past them (most of
     # it in a parallel round's regions) then costs no page until a run is written there.
-    pool = np.empty(capacity, np.int32)
+    if pool is None:
+        pool = np.empty(capacity, np.int32)
+    elif pool.shape != (capacity,) or pool.dtype != np.int32:
+        raise ValueError(f"make_face_lists: pool must be ({capacity},) int32")
     if alive is None:
         alive = np.ones(faces.shape[0], np.uint8)
     used = fill_face_lists(faces, alive, start, count, pool, sort_chunks())

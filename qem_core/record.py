@@ -85,9 +85,11 @@ def append_merged(record: Record, parts: Sequence[Record]) -> Record:
     merge_by_running_max(np.concatenate([p.cost[:c] for p, c in zip(parts, counts, strict=True)]),
                          np.cumsum(counts), order)
 
-    def merged(field: str) -> np.ndarray:
+    def merge_into(field: str, out: np.ndarray) -> None:
+        """out <- the parts' rows of ``field`` in merged order, gathered straight into
+        it (mode "clip": the rows are all in range, and "raise" buffers ``out``)."""
         rows = [getattr(p, field)[:c] for p, c in zip(parts, counts, strict=True)]
-        return np.concatenate(rows)[order]
+        np.take(np.concatenate(rows), order, axis=0, out=out, mode="clip")
 
     def merged_runs(field: str, end_field: str) -> tuple[np.ndarray, np.ndarray]:
         """The runs' items in merged order, and their lengths."""
@@ -112,11 +114,8 @@ def append_merged(record: Record, parts: Sequence[Record]) -> Record:
     if relabel0 + relabel.size > record.relabel.shape[0]:
         record = record._replace(relabel=grown(record.relabel, -1, relabel0 + relabel.size))
     span = slice(j0, j0 + total)
-    record.a[span] = merged("a")
-    record.b[span] = merged("b")
-    record.position_a[span] = merged("position_a")
-    record.position_b[span] = merged("position_b")
-    record.cost[span] = merged("cost")
+    for field in ("a", "b", "position_a", "position_b", "cost"):
+        merge_into(field, getattr(record, field)[span])
     record.killed[killed0:killed0 + killed.size] = killed
     record.killed_end[span] = killed0 + np.cumsum(killed_lengths)
     record.relabel[relabel0:relabel0 + relabel.size] = relabel

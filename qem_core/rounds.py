@@ -64,6 +64,7 @@ from ._kernels.pairs import Pairs
 from ._kernels.partition import (
     faces_by_lowest_corner,
     freeze_band,
+    label_runs,
     morton_codes,
     move_rows,
     order_by_code,
@@ -310,11 +311,7 @@ def _cut(cx: Complex, part: np.ndarray, n_parts: int, shift: float
     moved on by ``shift`` of a run (the last one wraps round to the first vertices), then
     freeze the band. Returns the number of vertices left in each part and of faces with
     all corners in it (by part number)."""
-    live = np.flatnonzero(cx.vertex_alive)
-    part[:] = PART_FROZEN  # dead vertices: in no part
-    offset = int(shift * live.size) // n_parts
-    rank = np.arange(offset, offset + live.size, dtype=np.int64)
-    part[live] = (rank * n_parts // live.size % n_parts).astype(np.uint8)
+    label_runs(cx.vertex_alive, n_parts, shift, part)
     vertices_in_part = np.zeros(PART_FROZEN + 1, np.int64)
     faces_in_part = np.zeros(PART_FROZEN + 1, np.int64)
     freeze_band(cx.faces, cx.face_alive, part, vertices_in_part, faces_in_part)

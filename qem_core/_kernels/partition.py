@@ -40,6 +40,27 @@ def _part_edges(faces, face_alive, face_edge, part, n_edge_ids, region_start, re
 part_edges = numba.njit(cache=True)(_part_edges)
 
 
+def _label_runs(vertex_alive, n_parts, shift, part):
+    """part[v] for the live vertices, in index order: n_parts runs of equal size, moved
+    on by ``shift`` (a fraction) of a run, the last wrapping round to the first
+    vertices; PART_FROZEN for the dead. One pass to count, one to label (numpy's
+    flatnonzero, arange and arithmetic over the live vertices took 6-8 ms a round)."""
+    n_live = 0
+    for v in range(vertex_alive.shape[0]):
+        if vertex_alive[v] != 0:
+            n_live += 1
+    rank = np.int64(int(shift * n_live) // n_parts)
+    for v in range(vertex_alive.shape[0]):
+        if vertex_alive[v] != 0:
+            part[v] = rank * n_parts // n_live % n_parts
+            rank += 1
+        else:
+            part[v] = PART_FROZEN
+
+
+label_runs = numba.njit(cache=True)(_label_runs)
+
+
 def _freeze_band(faces, face_alive, part, vertices_in_part, faces_in_part):
     """Every corner of a live face whose corners lie in different parts becomes
     PART_FROZEN: what is left in a part has all its neighbours in that part.

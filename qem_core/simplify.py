@@ -204,6 +204,10 @@ def _initial_complex(vertices: np.ndarray, faces: np.ndarray, options: BuildOpti
     edge_quadrics = np.zeros((edges.shape[0] if exact else 0, QUADRIC_SIZE))
     sum_quadrics(faces, face_quadrics, face_edge, border, border_edges, border_quadrics,
                  vertex_quadrics, edge_quadrics, exact)
+    # Set where a face uses the vertex (index assignment: no (3m,) int64 copy of the
+    # faces, as np.bincount makes).
+    vertex_alive = np.zeros(n, np.uint8)
+    vertex_alive[faces.reshape(-1)] = 1
     if wedges is None:
         face_wedges, wedge_values = np.zeros((0, 3), np.int32), np.zeros((0, 0))
     else:
@@ -217,7 +221,7 @@ def _initial_complex(vertices: np.ndarray, faces: np.ndarray, options: BuildOpti
     cx = Complex(
         vertices=vertices if owned else np.array(vertices, np.float64, copy=True),
         vertex_quadrics=vertex_quadrics,
-        vertex_alive=(np.bincount(faces.reshape(-1), minlength=n) > 0).astype(np.uint8),
+        vertex_alive=vertex_alive,
         vertex_refused=np.zeros(n, np.uint8),
         faces=faces if owned else np.array(faces, np.int32, copy=True),
         face_alive=np.ones(m, np.uint8),

@@ -53,6 +53,7 @@ from ._kernels.contract import (
 from ._kernels.heap import heapify, make_heap
 from ._kernels.link import make_neighbourhood, restart_generations
 from ._kernels.pairs import candidate_pairs, make_pairs
+from ._kernels.partition import take_rows
 from ._kernels.quadrics import QUADRIC_SIZE, fill_face_quadrics
 from ._kernels.runs import gather_runs
 from ._kernels.scale import ldexp_into
@@ -288,7 +289,9 @@ def contract_greedily(
             mesh_edges = unique_edges(faces, vertices.shape[0])
         vertex_order, face_order, ordered_faces, ordered_edges = spatial_order(
             vertices, faces, mesh_edges)
-        ordered_vertices = np.asarray(vertices, np.float64)[vertex_order]  # a new C array
+        # A new C array, gathered in threads (numpy's fancy index took 14-39 ms).
+        ordered_vertices = np.empty((vertex_order.size, 3))
+        take_rows(vertex_order, np.ascontiguousarray(vertices, np.float64), ordered_vertices)
         run = _contract(ordered_vertices, ordered_faces, options, progress, None,
                         ordered_edges, None, rounds_above=rounds_above)
         record, cx = in_input_order(run.record, run.complex, vertex_order, face_order)

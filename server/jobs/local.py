@@ -30,6 +30,7 @@ from ..settings import Settings
 from ..storage import Storage, open_storage
 from .base import JobQueue
 from .build import run_build
+from .memory import keep_freed_memory
 
 __all__ = ["LocalJobQueue"]
 
@@ -51,6 +52,7 @@ def _init_worker(settings: Settings) -> None:
     global _worker_storage, _worker_settings, _worker_parent
     logging.basicConfig(level=logging.INFO, format="%(levelname)s: %(name)s: %(message)s")
     _worker_settings = settings
+    keep_freed_memory(settings.worker_keep_memory_bytes)
     _worker_storage = open_storage(settings)
     _worker_parent = os.getppid()
     _worker_idle.set()

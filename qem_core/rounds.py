@@ -58,7 +58,7 @@ from ._kernels.contract import (
     Scratch,
     run_contractions,
 )
-from ._kernels.heap import Heap, key_cost, park_above
+from ._kernels.heap import Heap, key_cost, kth_smallest_key, park_above
 from ._kernels.link import PART_FROZEN, Neighbourhood, restart_generations
 from ._kernels.pairs import Pairs
 from ._kernels.partition import (
@@ -388,11 +388,7 @@ def _start_round(executor: ThreadPoolExecutor, cx: Complex, hood: Neighbourhood,
     position.fill(-1)
     fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, ends, ids, run_start, run_end,
               params[PARAM_EXACT] != 0.0, params[PARAM_RANK_TOLERANCE], entries)
-    keys = arrays.empty("keys", (n_edges,), np.int64)  # a copy: partitioned in place
-    np.concatenate([entries[run, 0] for run in runs], out=keys)
-    k = int(STOP_QUANTILE * (n_edges - 1))
-    keys.partition(k)
-    stop_key = keys[k]
+    stop_key = kth_smallest_key(entries, run_start, run_end, int(STOP_QUANTILE * (n_edges - 1)))
     heaps = [Heap(entries[run], position, np.array([run.stop - run.start], np.int64))
              for run in runs]
     # The loops stop before the candidates above the round's cost: those stay out. The

@@ -7,6 +7,7 @@ from hypothesis import strategies as st
 from qem_core._kernels.heap import (
     PARKED,
     heapify,
+    kth_smallest_key,
     make_heap,
     park_above,
     remove,
@@ -106,3 +107,27 @@ def test_heapify_orders_rows_written_unordered():
     heap.size[0] = N_EDGES
     heapify(heap.entries, heap.position, heap.size)
     check_heap(heap, {i: (int(keys[i]), pack(i % 3, i)) for i in range(N_EDGES)}, set())
+
+
+@given(st.lists(st.one_of(st.floats(0.0, 1e30), st.sampled_from([0.0, 1e-300, np.inf, 2.5])),
+                min_size=1, max_size=300),
+       st.lists(st.integers(0, 300), min_size=0, max_size=4), st.floats(0.0, 1.0))
+def test_kth_smallest_key_is_what_partition_gives(costs, cuts, quantile):
+    """Over the keys of some runs of rows (gaps between them unread), the k-th smallest
+    is np.partition's, for costs across many octaves, repeated ones, zero and infinity."""
+    keys = np.array(costs, np.float64).view(np.int64)
+    n = keys.size
+    edges = sorted({0, n, *(min(c, n) for c in cuts)})
+    # Each run is followed by a gap of garbage rows.
+    run_start, run_end, rows = [], [], []
+    for low, high in zip(edges[:-1], edges[1:], strict=True):
+        run_start.append(len(rows))
+        rows.extend(keys[low:high])
+        run_end.append(len(rows))
+        rows.extend([-1, 2**62])
+    entries = np.zeros((len(rows), 3), np.int64)
+    entries[:, 0] = rows
+    k = int(quantile * (n - 1))
+    expected = np.partition(keys.copy(), k)[k]
+    assert kth_smallest_key(entries, np.array(run_start, np.int64),
+                            np.array(run_end, np.int64), k) == expected

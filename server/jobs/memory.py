@@ -3,10 +3,12 @@
 glibc gives a freed block of 128 KiB or more back to the kernel at once (the threshold
 rises towards 32 MiB as such blocks are freed), so every build faults its arrays' pages
 in afresh, and a page fault costs several microseconds on virtual machines like these.
-Three dragon builds in one process faulted in 419, 419 and 358 MiB and took 2.70, 2.70
-and 2.64 s; told to serve blocks up to ``keep_bytes`` from its heap and to trim the heap
-only when more than that lies free at its top, the same process faulted in 348, 35 and
-0 MiB and took 2.26, 2.18 and 2.17 s (one sitting, 2026-12-03).
+Three dragon builds in one process faulted in 410, 410 and 350 MiB; told to serve
+blocks up to ``keep_bytes`` (512 MiB) from its heap and to trim the heap only when more
+than that lies free at its top, the process faulted in 340, 35 and 0 MiB, and its
+second and third builds took 2.06 and 2.02 s against 2.16 and 2.23 s (medians of three
+processes each way, alternated in one sitting, 2026-12-03: 0.95x and 0.91x). An idle
+worker then held 618 MB against 214 MB.
 
 The price is memory: an idle worker holds up to ``keep_bytes`` that its last build
 freed. It is the worker process's own setting (`server.jobs.local` calls this when a

@@ -17,12 +17,15 @@ from server.settings import Settings
 # In a fresh interpreter: the setting is process-wide. Prints the pages faulted in when
 # a 48 MiB array, written, freed, is allocated and written again, as a share of its pages.
 REFAULTED = """
-import resource, sys
+import ctypes, resource, sys
 import numpy as np
 from server.jobs.memory import keep_freed_memory
+# Small pages, each a fault of its own, whatever the machine's huge-page setting:
+# PR_SET_THP_DISABLE for this process, and no huge-page advice from numpy.
+ctypes.CDLL(None).prctl(41, 1, 0, 0, 0)
 try:
     from numpy._core.multiarray import _set_madvise_hugepage
-    _set_madvise_hugepage(False)  # small pages, each a fault of its own
+    _set_madvise_hugepage(False)
 except ImportError:
     pass
 kept = keep_freed_memory(int(sys.argv[1]))

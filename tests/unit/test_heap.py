@@ -115,7 +115,7 @@ def test_heapify_orders_rows_written_unordered():
 def test_kth_smallest_key_is_what_partition_gives(costs, cuts, quantile):
     """Over the keys of some runs of rows (gaps between them unread), the k-th smallest
     is np.partition's, for costs across many octaves, repeated ones, zero and infinity."""
-    keys = np.array(costs, np.float64).view(np.int64)
+    keys = (np.array(costs, np.float64) + 0.0).view(np.int64)  # -0.0 as cost_key makes it
     n = keys.size
     edges = sorted({0, n, *(min(c, n) for c in cuts)})
     # Each run is followed by a gap of garbage rows.

@@ -17,6 +17,7 @@ from .errors import (
 )
 from .mesh import Mesh
 from .options import BuildOptions
+from .preload import warm_up
 from .progressive import (
     ProgressiveMesh,
     VertexSplits,
@@ -26,7 +27,6 @@ from .progressive import (
 )
 from .qpm import load
 from .simplify import build
-from .warm_up import warm_up
 
 
 def build_mesh(mesh: Mesh, options=None, progress=None) -> ProgressiveMesh:

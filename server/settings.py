@@ -57,9 +57,10 @@ class Settings(BaseSettings):
     max_build_attempts : a build interrupted this many times (restart, worker crash) is
         marked failed instead of being requeued again.
     progress_interval_s : a build writes its progress to the database at most this often.
-    worker_keep_memory_bytes : memory a build worker keeps for its next build after its
-        builds free it, instead of faulting it in again (glibc only: server.jobs.memory);
-        0 leaves the C library's defaults.
+    worker_keep_memory_bytes : opt-in: a build worker keeps memory its builds free for
+        its next build instead of faulting it in again, at the price of holding about its
+        largest build's peak while idle (glibc only: server.jobs.memory); 0, the default,
+        leaves the C library's defaults.
     cors_allow_origins : origins allowed to GET from a browser ("*" = any).
     web_dir : folder served at ``/`` (the web viewer); default ``client/web`` next to the
         installed package, and a plain HTML list of meshes when it does not exist.
@@ -78,7 +79,7 @@ class Settings(BaseSettings):
     lod_cache_bytes: int = Field(256 * 2**20, ge=0, le=64 * 2**30)
     max_build_attempts: int = Field(3, ge=1, le=100)
     progress_interval_s: float = Field(0.5, gt=0.0, le=60.0)
-    worker_keep_memory_bytes: int = Field(512 * 2**20, ge=0, le=2**31 - 1)
+    worker_keep_memory_bytes: int = Field(0, ge=0, le=2**31 - 1)
     metadata_backend: str = "sqlite"
     blob_backend: str = "local"
     jobs_backend: str = "local"

@@ -52,11 +52,23 @@ def _init_worker(settings: Settings) -> None:
     global _worker_storage, _worker_settings, _worker_parent
     logging.basicConfig(level=logging.INFO, format="%(levelname)s: %(name)s: %(message)s")
     _worker_settings = settings
-    keep_freed_memory(settings.worker_keep_memory_bytes)
+    _keep_freed_memory(settings.worker_keep_memory_bytes)
     _worker_storage = open_storage(settings)
     _worker_parent = os.getppid()
     _worker_idle.set()
     threading.Thread(target=_exit_when_orphaned, name="qem-orphan-watch", daemon=True).start()
+
+
+def _keep_freed_memory(keep_bytes: int) -> None:
+    if keep_bytes <= 0:
+        return
+    served = keep_freed_memory(keep_bytes)
+    if served == 0:
+        log.warning("worker %d: cannot keep freed memory (not glibc's malloc); "
+                    "QEM_WORKER_KEEP_MEMORY_BYTES is ignored", os.getpid())
+    elif served < keep_bytes:
+        log.info("worker %d keeps up to %d bytes of freed memory, blocks up to %d bytes "
+                 "from its heap (this glibc's limit)", os.getpid(), keep_bytes, served)
 
 
 def _parent_is_gone() -> bool:

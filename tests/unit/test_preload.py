@@ -10,7 +10,7 @@ import sys
 import numpy as np
 
 import qem_core
-from qem_core.warm_up import warm_up_mesh
+from qem_core.preload import warm_up_mesh
 
 # Run in a fresh interpreter: in this one, earlier tests have loaded kernels already.
 AFTER_WARM_UP = """

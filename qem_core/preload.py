@@ -4,7 +4,7 @@ numba compiles a kernel on its first call in a process, or loads it from its on-
 cache (``cache=True``), and a build pays that for every kernel it is the first to call.
 A small mesh does not call them all: parallel rounds (rounds.py) run only on meshes of
 more than `rounds.PARALLEL_MIN_VERTICES` vertices, so the first big build of a process
-loaded the rounds' 19 kernels during its own run, even after small builds (0.1-0.2 s of
+loaded the rounds' 19 kernels during its own run, even after small builds (60-90 ms of
 a dragon build, measured with `bench.build_speed`). `warm_up` builds a small made-up
 mesh along every path a build takes (the rounds too, on a lowered threshold, and with
 appearance attributes, and with vertex pairs) and reads its levels, so that a long-lived

@@ -114,6 +114,10 @@ REPORT_INTERVAL_S = 0.1
 POOL_ROOM_PER_VERTEX = 16
 
 
+# Bits per axis of the Morton code of `spatial_order`.
+MORTON_BITS = 10
+
+
 class RoundArrays:
     """The working arrays of a build's rounds, each kept for the next round: a round's
     are no larger than the first's (the live vertices, faces and edges only shrink), and
@@ -132,9 +136,6 @@ class RoundArrays:
             kept = self._kept[name] = np.empty(size, dtype)
         return kept[:size].reshape(shape)
 
-
-# Bits per axis of the Morton code of `spatial_order`.
-MORTON_BITS = 10
 
 
 def spatial_order(vertices: np.ndarray, faces: np.ndarray, mesh_edges: MeshEdges
@@ -320,15 +321,12 @@ def _cut(cx: Complex, part: np.ndarray, n_parts: int, shift: float
 
 def contract_in_rounds(cx: Complex, hood: Neighbourhood, pairs: Pairs, record: Record,
                        params: np.ndarray, make_scratch: Callable[[], Scratch], chunk: int,
-                       report: Callable[[int], None], min_live: int | None = None
-                       ) -> tuple[Record, int]:
+                       report: Callable[[int], None], min_live: int) -> tuple[Record, int]:
     """Contract in parallel rounds (module docstring) while more than ``min_live``
-    (default PARALLEL_MIN_VERTICES) vertices are live. Appends to ``record``; returns it (grown
+    vertices are live (PARALLEL_MIN_VERTICES for a build). Appends to ``record``; returns it (grown
     if it had to be) and the number of contractions. ``report(contractions so far)``
     is called from this thread while the loops run (`_run_loops`). Leaves ``hood.part``
     all 0."""
-    if min_live is None:
-        min_live = PARALLEL_MIN_VERTICES
     done = 0
     # A contraction never makes an edge id: the first round's bound holds for them all.
     n_edge_ids = int(cx.face_edge.max()) + 1 if cx.face_edge.size else 0

@@ -293,11 +293,11 @@ def contract_greedily(
         ordered_vertices = np.empty((vertex_order.size, 3))
         take_rows(vertex_order, np.ascontiguousarray(vertices, np.float64), ordered_vertices)
         run = _contract(ordered_vertices, ordered_faces, options, progress, None,
-                        ordered_edges, None, rounds_above=rounds_above)
+                        ordered_edges, None, rounds_while_above=rounds_above)
         record, cx = in_input_order(run.record, run.complex, vertex_order, face_order)
         return ContractionRun(record, cx, run.n_contractions)
     return _contract(vertices, faces, options, progress, max_contractions, mesh_edges, wedges,
-                     rounds_above=None)
+                     rounds_while_above=None)
 
 
 def _costs_are_geometric(options: BuildOptions, wedges: Wedges | None) -> bool:
@@ -310,10 +310,10 @@ def _costs_are_geometric(options: BuildOptions, wedges: Wedges | None) -> bool:
 def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
               progress: ProgressCallback | None, max_contractions: int | None,
               mesh_edges: MeshEdges | None, wedges: Wedges | None,
-              rounds_above: int | None) -> ContractionRun:
-    """`contract_greedily`, in parallel rounds first while more than ``rounds_above``
-    vertices are live (None: no rounds)."""
-    in_rounds = rounds_above is not None
+              rounds_while_above: int | None) -> ContractionRun:
+    """`contract_greedily`, in parallel rounds first while more than
+    ``rounds_while_above`` vertices are live (None: no rounds)."""
+    in_rounds = rounds_while_above is not None
     n, m = vertices.shape[0], faces.shape[0]
     if mesh_edges is None:
         mesh_edges = unique_edges(faces, n)
@@ -336,7 +336,7 @@ def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
     if in_rounds:
         record, done = contract_in_rounds(cx, hood, pairs, record, params,
                                           lambda: _make_scratch(cx, options, None), chunk,
-                                          report, min_live=rounds_above)
+                                          report, min_live=rounds_while_above)
         if done:
             # The serial loop runs on the live part alone, its rows together
             # (rounds.compacted), and tells its work back after. No pairs in rounds: the

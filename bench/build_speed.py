@@ -18,10 +18,19 @@ the build call (or the peer's simplify call) alone. qem-lod is measured five way
   from the cache in their timed call, 60-90 ms on dragon.)
 - **hot without rounds**: the same with `parallel_rounds=false`, one strictly greedy
   sequence: what the parallel rounds (qem_core/rounds.py) gain, in the same run.
+- **hot, plain quadric cost**: the same with `distance_weight=0` and `volume_weight=0`,
+  the contraction cost of Garland and Heckbert alone: what the build's machinery costs
+  without the two terms priced on top of it (their quality is in the quality bench).
 - **second build**: --runs runs, each after an untimed build of the same mesh in the
   same process: what a long-lived worker (the server's job pool) pays for its next
   builds. A process's first big build also faults in its memory from the kernel, which
   the next ones, reusing the freed memory, mostly do not.
+
+Every series also reports the median CPU time of its runs (user + system, all threads;
+`bench.measure`): over the wall time it is the cores the call kept busy, and over the
+machine's cores it is the least wall time the same work could take on this machine,
+however well it were spread; the report sets that bound for the hot build against the
+peers.
 
 Numba compile time is reported as cold - median(warm cache). The peers are
 meshoptimizer and PyMeshLab (default options), each simplifying the same mesh once to
@@ -153,6 +162,7 @@ class _Series:
     def __init__(self, name: str) -> None:
         self.name = name
         self.times_s: list[float] = []
+        self.cpu_times_s: list[float] = []
         self.peak_rss_bytes = 0
         self.rss_increase_bytes = 0
         self.status = "ok"
@@ -160,6 +170,7 @@ class _Series:
 
     def add(self, measured: ChildMeasurement) -> None:
         self.times_s.extend(measured.times_s)
+        self.cpu_times_s.extend(measured.cpu_times_s)
         self.peak_rss_bytes = max(self.peak_rss_bytes, measured.peak_rss_bytes)
         self.rss_increase_bytes = max(self.rss_increase_bytes, measured.rss_increase_bytes)
 
@@ -175,12 +186,18 @@ class _Series:
     def median_s(self) -> float | None:
         return median_of_runs(self.times_s) if self.ok else None
 
+    @property
+    def median_cpu_s(self) -> float | None:
+        return median_of_runs(self.cpu_times_s) if self.ok and self.cpu_times_s else None
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "name": self.name,
             "status": self.status,
             "times_s": self.times_s,
             "median_s": self.median_s,
+            "cpu_times_s": self.cpu_times_s,
+            "median_cpu_s": self.median_cpu_s,
             "peak_rss_bytes": self.peak_rss_bytes or None,
             "rss_increase_bytes": self.rss_increase_bytes if self.ok else None,
             **self.detail,
@@ -223,9 +240,14 @@ def measure_build_speed(
     serial_hot = _Series(f"{qem_lod.variant_label(serial_values)} hot (run alone)")
     if option_values.get("parallel_rounds") is False:
         serial_hot.status = "skipped: the options already turn parallel rounds off"
+    # The same build priced by the plain quadric cost, for what the machinery costs alone.
+    plain_values = {**option_values, "distance_weight": 0.0, "volume_weight": 0.0}
+    plain_hot = _Series(f"{qem_lod.variant_label(plain_values)} hot (run alone)")
+    if plain_values == option_values:
+        plain_hot.status = "skipped: the options already price the plain quadric cost"
     second = _Series(f"{label} second build (after one untimed build of the same mesh)")
     peers = {name: _Series(f"{name} to {fraction:g}") for name in PEER_NAMES}
-    qem_series = (cold, warm, hot, serial_hot, second)
+    qem_series = (cold, warm, hot, serial_hot, plain_hot, second)
     if qem_note is not None:
         for series in qem_series:
             series.status = f"skipped: {qem_note}"
@@ -240,22 +262,16 @@ def measure_build_speed(
         _progress(f"{mesh.name} {cold.name}: {format_ms(cold.median_s)} ms")
         for run in range(runs):
             _measure_into(warm, qem_lod.build_progressive_mesh, build_args, **qem_options)
-            _measure_into(
-                hot,
-                qem_lod.build_progressive_mesh,
-                build_args,
-                before=qem_lod.warm_up_build,
-                before_args=(option_values,),
-                **qem_options,
-            )
-            _measure_into(
-                serial_hot,
-                qem_lod.build_progressive_mesh,
-                (mesh.vertices, mesh.faces, serial_values),
-                before=qem_lod.warm_up_build,
-                before_args=(serial_values,),
-                **qem_options,
-            )
+            for series, values in ((hot, option_values), (serial_hot, serial_values),
+                                   (plain_hot, plain_values)):
+                _measure_into(
+                    series,
+                    qem_lod.build_progressive_mesh,
+                    (mesh.vertices, mesh.faces, values),
+                    before=qem_lod.warm_up_build,
+                    before_args=(values,),
+                    **qem_options,
+                )
             _measure_into(
                 second,
                 qem_lod.build_progressive_mesh,
@@ -288,6 +304,7 @@ def measure_build_speed(
     ratios = {}
     for qem_series_name, series in (("warm_cache", warm), ("hot", hot),
                                     ("hot_without_rounds", serial_hot),
+                                    ("hot_plain_quadric_cost", plain_hot),
                                     ("second_build", second)):
         for name, peer_series in peers.items():
             if series.ok and peer_series.ok:
@@ -311,6 +328,22 @@ def measure_build_speed(
         "series": [s.to_dict() for s in (*qem_series, *peers.values())],
         "numba_compile_s": compile_s,
         "ratios": ratios,
+        "cpu_bound": _cpu_bound(hot, peers, describe_machine()["cores"]),
+    }
+
+
+def _cpu_bound(hot: _Series, peers: dict[str, _Series], cores: int | None) -> dict | None:
+    """The least wall time the hot build's CPU time allows on ``cores`` cores, and its
+    ratio to each peer's median wall time (None where a figure is missing)."""
+    if not cores or hot.median_cpu_s is None:
+        return None
+    least_s = hot.median_cpu_s / cores
+    return {
+        "cores": cores,
+        "hot_cpu_s": hot.median_cpu_s,
+        "least_wall_s": least_s,
+        "ratios": {name: least_s / series.median_s
+                   for name, series in peers.items() if series.ok},
     }
 
 
@@ -329,6 +362,8 @@ def write_build_speed_report(path: Path, entry: dict[str, Any]) -> None:
                 series["name"],
                 str(len(series["times_s"])),
                 format_ms(series["median_s"]),
+                format_ms(series.get("median_cpu_s")),
+                _cores_busy(series),
                 ", ".join(format_ms(t) for t in series["times_s"]) or "-",
                 format_mib(series["peak_rss_bytes"], series["rss_increase_bytes"]),
                 counts,
@@ -340,13 +375,15 @@ def write_build_speed_report(path: Path, entry: dict[str, Any]) -> None:
             "series",
             "runs",
             "median ms",
+            "median CPU ms",
+            "cores busy",
             "each run ms",
             "peak RSS MiB (+call)",
             "vertices",
             "status",
         ],
         rows,
-        [False, True, True, True, True, False, False],
+        [False, True, True, True, True, True, True, False, False],
     )
     ratio_lines = [
         f"- qem-lod {key.split('/')[0].replace('_', ' ')} / {key.split('/')[1]}: "
@@ -373,7 +410,10 @@ def write_build_speed_report(path: Path, entry: dict[str, Any]) -> None:
         "+ run), warm cache = the same cache dir afterwards (cache load + run), hot = after "
         "`qem_core.warm_up()` (every kernel loaded) and an untimed build of a 22-vertex "
         "mesh in the same process (run alone); "
-        "`parallel_rounds=False` is the same build as one strictly greedy sequence; second "
+        "`parallel_rounds=False` is the same build as one strictly greedy sequence, "
+        "`distance_weight=0.0,volume_weight=0.0` the same build priced by the plain quadric "
+        "cost; cores busy = median CPU time (user + system, all threads) / median wall time; "
+        "second "
         "build = after an untimed build of the same mesh in the same process. The peers "
         f"simplify once to {settings['peer_fraction']:g} of the referenced vertices "
         f"({settings['peer_target_faces']} faces), default options, after an untimed call "
@@ -386,6 +426,16 @@ def write_build_speed_report(path: Path, entry: dict[str, Any]) -> None:
         lines += [f"qem-lod: {entry['qem_note']}", ""]
     lines += [*table, "", compile_line, "", "Ratios of medians (above 1: qem-lod is slower):", ""]
     lines += [*ratio_lines, ""]
+    bound = entry.get("cpu_bound")
+    if bound:
+        peer_ratios = ", ".join(f"{format_ratio(value)}x {name}'s median"
+                                for name, value in bound["ratios"].items())
+        lines += [
+            f"CPU bound: the hot build's median CPU time, {format_ms(bound['hot_cpu_s'])} ms, "
+            f"spread perfectly over this machine's {bound['cores']} cores would still take "
+            f"{format_ms(bound['least_wall_s'])} ms of wall time: {peer_ratios}.",
+            "",
+        ]
     stages = entry.get("stages")
     if stages:
         total = stages["total_s"]
@@ -404,6 +454,12 @@ def write_build_speed_report(path: Path, entry: dict[str, Any]) -> None:
         ]
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines), encoding="utf-8")
+
+
+def _cores_busy(series: dict[str, Any]) -> str:
+    """Median CPU time over median wall time, as "1.87"; "-" where either is missing."""
+    cpu, wall = series.get("median_cpu_s"), series.get("median_s")
+    return f"{cpu / wall:.2f}" if cpu is not None and wall else "-"
 
 
 def _progress(message: str) -> None:

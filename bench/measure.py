@@ -16,6 +16,10 @@ Every benchmark goes through `measure_in_child`, so all figures mean the same th
   than the *parent's* peak at the time of the exec (Linux carries the old address
   space's mark over into `signal->maxrss`), so a small call measured from a large
   harness would show the harness's memory.
+- **CPU time**: `time.process_time` around the call, once per run: user + system time of
+  every thread of the child. Over the wall time it is the number of cores the call kept
+  busy on average, and over the machine's core count it bounds how fast the call could
+  run there, whatever its scheduling.
 
 Run as ``python -m bench.measure REQUEST RESPONSE``, this module is the child: it reads a
 pickled request, runs it, and writes a pickled response. Functions are pickled by
@@ -55,6 +59,7 @@ class ChildMeasurement:
     """What one `measure_in_child` call measured.
 
     times_s : wall time of each run of the call, seconds.
+    cpu_times_s : CPU time (user + system, all threads) of each run, seconds.
     rss_before_bytes : resident set of the child just before the first run.
     peak_rss_bytes : peak resident set during the runs (see the module docstring).
     peak_covers_setup : True where the high-water mark could not be reset, so the peak
@@ -64,6 +69,7 @@ class ChildMeasurement:
     """
 
     times_s: tuple[float, ...]
+    cpu_times_s: tuple[float, ...]
     rss_before_bytes: int
     peak_rss_bytes: int
     peak_covers_setup: bool
@@ -212,18 +218,20 @@ def _run_request(request: dict[str, Any]) -> dict[str, Any]:
     gc.collect()
     peak_reset = _reset_peak_rss()
     rss_before = _resident_bytes()
-    times_s = []
+    times_s, cpu_times_s = [], []
     result = None
     for _ in range(request["runs"]):
         result = None  # let the previous result go before the next run
-        start = time.perf_counter()
+        start, cpu_start = time.perf_counter(), time.process_time()
         result = function(*args)
         times_s.append(time.perf_counter() - start)
+        cpu_times_s.append(time.process_time() - cpu_start)
     peak_rss = _peak_resident_bytes()
     if request["then"] is not None:
         result = request["then"](result, *request["then_args"])
     return {
         "times_s": tuple(times_s),
+        "cpu_times_s": tuple(cpu_times_s),
         "rss_before_bytes": rss_before,
         "peak_rss_bytes": max(peak_rss, rss_before),
         "peak_covers_setup": not peak_reset,

@@ -309,10 +309,11 @@ def measure_build_speed(
         for name, peer_series in peers.items():
             if series.ok and peer_series.ok:
                 ratios[f"{qem_series_name}/{name}"] = series.median_s / peer_series.median_s
+    machine = describe_machine()
     return {
         "mesh": mesh.name,
         "measured_at": datetime.now(UTC).isoformat(timespec="seconds"),
-        "machine": describe_machine(),
+        "machine": machine,
         "input": {
             "stored_vertices": mesh.n_stored,
             "referenced_vertices": mesh.n_referenced,
@@ -328,7 +329,7 @@ def measure_build_speed(
         "series": [s.to_dict() for s in (*qem_series, *peers.values())],
         "numba_compile_s": compile_s,
         "ratios": ratios,
-        "cpu_bound": _cpu_bound(hot, peers, describe_machine()["cores"]),
+        "cpu_bound": _cpu_bound(hot, peers, machine["cores"]),
     }
 
 

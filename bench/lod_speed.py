@@ -30,14 +30,12 @@ import functools
 import shlex
 import sys
 import tempfile
-import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from . import qem_lod
 from .machine import describe_machine
-from .measure import median_of_runs
 from .meshes import BenchMesh, load_bench_mesh, target_counts
 from .peers import PEERS, warm_up_peer
 from .report import format_ms, format_ratio, markdown_table
@@ -92,37 +90,20 @@ def load_and_warm_up(path: str) -> None:
     pm.lod(pm.n_base)
 
 
-# CPU seconds of each timed call in this child (time.process_time, all threads): less
-# sensitive than wall time to other processes on a busy machine.
-_CPU_TIMES: list[float] = []
-
-
-def _cpu_timed(function, *args):
-    start = time.process_time()
-    result = function(*args)
-    _CPU_TIMES.append(time.process_time() - start)
-    return result
-
-
 def lod_of_qpm(path: str, n: int):
     """The timed call: `pm.lod(n)` of the already loaded .qpm."""
-    return _cpu_timed(_loaded(path).lod, n)
+    return _loaded(path).lod(n)
 
 
 def simplify_with_peer(name: str, vertices, faces, target_faces: int):
     """The timed call of a peer: its adapter, `bench.peers.PEERS[name].simplify`."""
-    return _cpu_timed(PEERS[name].simplify, vertices, faces, target_faces)
+    return PEERS[name].simplify(vertices, faces, target_faces)
 
 
 def describe_level(level) -> dict[str, Any]:
-    """{"out_vertices", "out_faces", "cpu_times_s"} of the last (vertices, faces) pair,
-    with the CPU time of every timed call in this child."""
+    """{"out_vertices", "out_faces"} of the last (vertices, faces) pair."""
     vertices, faces = level
-    return {
-        "out_vertices": int(len(vertices)),
-        "out_faces": int(len(faces)),
-        "cpu_times_s": list(_CPU_TIMES),
-    }
+    return {"out_vertices": int(len(vertices)), "out_faces": int(len(faces))}
 
 
 def save_progressive_mesh(progressive_mesh, path: str) -> dict[str, int]:
@@ -143,8 +124,6 @@ def _measured_entry(measured: Measured) -> dict[str, Any]:
         entry["min_s"], entry["max_s"] = min(measured.times_s), max(measured.times_s)
         if isinstance(measured.result, dict):
             entry.update(measured.result)
-        if entry.get("cpu_times_s"):
-            entry["cpu_median_s"] = median_of_runs(entry["cpu_times_s"])
     return entry
 
 

@@ -49,12 +49,14 @@ class Measured:
     """One `measure_in_child` call, or why it failed.
 
     status : "ok", or "failed: <last line of the error>".
-    times_s : each run's time, seconds; peak_rss_bytes : the child's peak RSS (None when
+    times_s : each run's time, seconds; cpu_times_s : each run's CPU time (user + system,
+    all threads of the child), seconds; peak_rss_bytes : the child's peak RSS (None when
     failed); result : what the child's `then` returned (None when failed).
     """
 
     status: str
     times_s: tuple[float, ...] = ()
+    cpu_times_s: tuple[float, ...] = ()
     peak_rss_bytes: int | None = None
     result: Any = None
 
@@ -71,6 +73,8 @@ class Measured:
             "status": self.status,
             "times_s": list(self.times_s),
             "median_s": self.median_s,
+            "cpu_times_s": list(self.cpu_times_s),
+            "cpu_median_s": median_of_runs(self.cpu_times_s) if self.ok else None,
             "peak_rss_bytes": self.peak_rss_bytes,
         }
 
@@ -84,7 +88,8 @@ def measure_or_fail(
     except ChildCallError as error:
         lines = [line.strip() for line in str(error).splitlines() if line.strip()]
         return Measured(status="failed: " + (lines[-1] if lines else type(error).__name__))
-    return Measured("ok", measured.times_s, measured.peak_rss_bytes, measured.result)
+    return Measured("ok", measured.times_s, measured.cpu_times_s, measured.peak_rss_bytes,
+                    measured.result)
 
 
 def load_average() -> list[float]:

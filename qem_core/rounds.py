@@ -137,7 +137,6 @@ class RoundArrays:
         return kept[:size].reshape(shape)
 
 
-
 def spatial_order(vertices: np.ndarray, faces: np.ndarray, mesh_edges: MeshEdges
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, MeshEdges]:
     """The mesh renumbered in z-order: (vertex_order, face_order, ordered_faces,

@@ -164,8 +164,10 @@ def _to_new2(vertices, faces, start, count, pool, v, other, px, py, pz, qx, qy,
 to_new2 = borrowing_kernel(_to_new2)
 
 
-def _to_old2(vertices, faces, start, count, pool, a, b, x, qx, qy, qz, enough):
-    """Squared distance from q to the star of a and b before the contraction. The faces
+def _to_old2(vertices, faces, start, count, pool, a, b, x, tried, tried_too, qx, qy, qz,
+             enough):
+    """Squared distance from q to the star of a and b before the contraction, less the
+    faces ``tried`` and ``tried_too`` (-1: none), which the caller has measured. The faces
     with the corner x (x = -1: the faces abx) are tried first, as those under the point
     measured; stops within ``enough`` like `to_new2`."""
     best = np.inf
@@ -178,6 +180,8 @@ def _to_old2(vertices, faces, start, count, pool, a, b, x, qx, qy, qz, enough):
                 if v == b and dying:
                     continue  # seen from a
                 if (dying if x < 0 else has_corner(faces, f, x)) != first_pass:
+                    continue
+                if f == tried or f == tried_too:
                     continue
                 best = min(best, to_face2(vertices, faces, f, -1, 0.0, 0.0, 0.0, qx, qy, qz))
                 if best <= enough:
@@ -207,7 +211,7 @@ def _star_distance2(vertices, faces, start, count, pool, a, b, px, py, pz,
     worst = max(worst, to_new2(vertices, faces, start, count, pool, b, a, px, py,
                                pz, vertices[b, 0], vertices[b, 1], vertices[b, 2], enough))
     enough = max(enough, worst)
-    worst = max(worst, to_old2(vertices, faces, start, count, pool, a, b, -1,
+    worst = max(worst, to_old2(vertices, faces, start, count, pool, a, b, -1, -1, -1,
                                px, py, pz, enough))
     enough = max(enough, worst)
     for v, other in ((a, b), (b, a)):
@@ -220,10 +224,26 @@ def _star_distance2(vertices, faces, start, count, pool, a, b, px, py, pz,
             mx = 0.5 * (px + vertices[x, 0])
             my = 0.5 * (py + vertices[x, 1])
             mz = 0.5 * (pz + vertices[x, 2])
-            if to_face2(vertices, faces, f, -1, 0.0, 0.0, 0.0, mx, my, mz) > enough:
-                worst = max(worst, to_old2(vertices, faces, start, count, pool,
-                                           a, b, x, mx, my, mz, enough))
-                enough = max(enough, worst)
+            d2 = to_face2(vertices, faces, f, -1, 0.0, 0.0, 0.0, mx, my, mz)
+            if d2 <= enough:
+                continue
+            # Moved off f (half the time, as p moved off v), it is mostly over the face
+            # across the edge v-x: that one next, the rest of the star only if it is
+            # not close enough either. The distance is the least over the star all the
+            # same (values within ``enough`` count for nothing, whichever is found).
+            across = -1
+            for j in range(count[v]):
+                g = pool[s + j]
+                if g != f and has_corner(faces, g, x):
+                    across = g
+                    break
+            if across >= 0:
+                d2 = min(d2, to_face2(vertices, faces, across, -1, 0.0, 0.0, 0.0, mx, my, mz))
+            if d2 > enough:
+                d2 = min(d2, to_old2(vertices, faces, start, count, pool, a, b, x, f, across,
+                                     mx, my, mz, enough))
+            worst = max(worst, d2)
+            enough = max(enough, worst)
     return worst
 
 

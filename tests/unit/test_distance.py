@@ -123,10 +123,10 @@ def reference_star_distance(vertices, faces, a, b, p):
                + [to_old(0.5 * (p + vertices[x])) for x in new_edges])
 
 
-@pytest.mark.parametrize("seed", range(20))
-def test_star_distance_matches_a_brute_force_over_its_points(seed):
+def random_contraction(seed, mesh_seed):
+    """A jittered icosphere, a random edge (a, b) of it and a new position p near it."""
     rng = np.random.default_rng(seed)
-    vertices, faces = icosphere(2, jitter=0.3, seed=seed)
+    vertices, faces = icosphere(2, jitter=0.3, seed=mesh_seed)
     faces = np.asarray(faces, np.int32)
     a = int(rng.integers(len(vertices)))
     ring = sorted({int(v) for f in faces if a in f for v in f} - {a})
@@ -134,6 +134,12 @@ def test_star_distance_matches_a_brute_force_over_its_points(seed):
     p = vertices[a] + rng.uniform(-0.2, 1.2) * (vertices[b] - vertices[a])
     p = p + rng.normal(scale=0.1, size=3)
     faces, start, count, pool = star_of(vertices, faces)
+    return vertices, faces, start, count, pool, a, b, p
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_star_distance_matches_a_brute_force_over_its_points(seed):
+    vertices, faces, start, count, pool, a, b, p = random_contraction(seed, seed)
     d2 = star_distance2(vertices, faces, start, count, pool, a, b, *p, 0.0)
     expected = reference_star_distance(vertices, faces.tolist(), a, b, p)
     assert np.sqrt(d2) == pytest.approx(expected, rel=1e-9, abs=1e-12)
@@ -226,3 +232,18 @@ def test_a_vertex_of_high_degree_is_priced_by_the_quadric():
     assert pm.n_base == 3
     for level in (3, 100, n + 1):
         assert pm.lod(level)[0].shape[0] == level
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_star_distance_is_exact_beyond_enough_and_within_it_below(seed):
+    """With a bound ``enough`` the search may stop early (a point within it of some face
+    counts for nothing), so the value is the brute force's where that is beyond the
+    bound, and within the bound where the brute force is."""
+    vertices, faces, start, count, pool, a, b, p = random_contraction(100 + seed, seed)
+    expected2 = reference_star_distance(vertices, faces.tolist(), a, b, p) ** 2
+    for enough in (0.25 * expected2, 0.9 * expected2, 1.1 * expected2, 1.5 * expected2):
+        d2 = star_distance2(vertices, faces, start, count, pool, a, b, *p, enough)
+        if expected2 > enough:
+            assert d2 == pytest.approx(expected2, rel=1e-9, abs=1e-24)
+        else:
+            assert d2 <= enough

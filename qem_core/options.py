@@ -36,7 +36,7 @@ class BuildOptions:
         meshes: area weighting lets small, strongly curved parts (a nose, a horn tip, a
         crease's narrow faces) go cheaply, which sets the Hausdorff distance of the
         finer levels; no weighting lets big flat faces count for no more than tiny
-        ones, which costs RMS (README).
+        ones, which costs RMS (docs/performance.md).
     error_mode : "additive" | "exact"
         "additive" contracts with Q_c = Q_a + Q_b; "exact" keeps quadrics on edges and
         triangles and uses inclusion-exclusion Q_c = Q_a + Q_b - Q_ab so each original
@@ -84,9 +84,9 @@ class BuildOptions:
         ordinary contractions, where d^2 is of the size of m, pay nothing. 0 is the
         plain quadric cost. The default, 2, keeps the Hausdorff distance within 1.1x
         the best peer's on dragon and the other bench meshes but spot, at no RMS cost,
-        for about a quarter more build time on the dragon (README). Contractions whose
-        two stars hold more than 128 faces (a vertex of very high degree) skip the term:
-        its search grows with the square of the star.
+        for about a quarter more build time on the dragon (docs/performance.md).
+        Contractions whose two stars hold more than 128 faces (a vertex of very high
+        degree) skip the term: its search grows with the square of the star.
     volume_weight : float >= 0
         Each contraction also pays for the volume it adds or removes: its height h, the
         volume change over the size of the star it is spread on, is charged like
@@ -97,7 +97,8 @@ class BuildOptions:
         fine levels, where h^2 stays below m / 2, pay nothing. The default, 3, meets the
         RMS target at every bench mesh and count, where 0 (the plain quadric cost)
         misses it at Spot's and fandisk's coarsest levels; those levels are sensitive
-        to it (README). Ignored with preserve_volume, which keeps the volume exactly.
+        to it (docs/performance.md). Ignored with preserve_volume, which keeps the
+        volume exactly.
     parallel_rounds : bool
         Contract the geometry of a mesh of more than 65536 vertices in parallel rounds
         (rounds.py): the live mesh, in z-order, is cut into parts of about 16384
@@ -106,8 +107,9 @@ class BuildOptions:
         sequences are merged by cost, and the next round shifts the cuts by half a part.
         The order is the greedy one except that the bands' cheap contractions wait a
         round, and the result does not depend on the number of cores or threads. About
-        1.6x faster on two cores (README). False: one strictly greedy sequence, as for
-        smaller meshes, meshes with appearance attributes, pairs or volume preservation.
+        2x faster on two cores (dragon: 1.95 s against 3.89 s, docs/performance.md).
+        False: one strictly greedy sequence, as for smaller meshes, meshes with
+        appearance attributes, pairs or volume preservation.
     """
 
     weighting: Weighting = "sqrt_area"

@@ -99,7 +99,7 @@ MAX_PARTS = PART_FROZEN
 # Rounds run while more vertices than this are live (and only for meshes this big). The
 # coarse levels are the ones the bands' deferrals would cost: with two halves, rounds
 # down to 16384 live vertices took 0.93-0.98x dragon's build time but raised the
-# Hausdorff distance of its 2 % levels up to 1.07x the best peer's (README).
+# Hausdorff distance of its 2 % levels up to 1.07x the best peer's (docs/performance.md).
 PARALLEL_MIN_VERTICES = 65536
 # A bound on the rounds of one build (each halves the live vertices or so; 4 on dragon).
 MAX_ROUNDS = 64

@@ -187,7 +187,7 @@ class _Series:
         return median_of_runs(self.times_s) if self.ok else None
 
     @property
-    def median_cpu_s(self) -> float | None:
+    def cpu_median_s(self) -> float | None:
         return median_of_runs(self.cpu_times_s) if self.ok and self.cpu_times_s else None
 
     def to_dict(self) -> dict[str, Any]:
@@ -197,7 +197,7 @@ class _Series:
             "times_s": self.times_s,
             "median_s": self.median_s,
             "cpu_times_s": self.cpu_times_s,
-            "median_cpu_s": self.median_cpu_s,
+            "cpu_median_s": self.cpu_median_s,
             "peak_rss_bytes": self.peak_rss_bytes or None,
             "rss_increase_bytes": self.rss_increase_bytes if self.ok else None,
             **self.detail,
@@ -336,12 +336,12 @@ def measure_build_speed(
 def _cpu_bound(hot: _Series, peers: dict[str, _Series], cores: int | None) -> dict | None:
     """The least wall time the hot build's CPU time allows on ``cores`` cores, and its
     ratio to each peer's median wall time (None where a figure is missing)."""
-    if not cores or hot.median_cpu_s is None:
+    if not cores or hot.cpu_median_s is None:
         return None
-    least_s = hot.median_cpu_s / cores
+    least_s = hot.cpu_median_s / cores
     return {
         "cores": cores,
-        "hot_cpu_s": hot.median_cpu_s,
+        "hot_cpu_s": hot.cpu_median_s,
         "least_wall_s": least_s,
         "ratios": {name: least_s / series.median_s
                    for name, series in peers.items() if series.ok},
@@ -363,7 +363,7 @@ def write_build_speed_report(path: Path, entry: dict[str, Any]) -> None:
                 series["name"],
                 str(len(series["times_s"])),
                 format_ms(series["median_s"]),
-                format_ms(series.get("median_cpu_s")),
+                format_ms(series.get("cpu_median_s")),
                 _cores_busy(series),
                 ", ".join(format_ms(t) for t in series["times_s"]) or "-",
                 format_mib(series["peak_rss_bytes"], series["rss_increase_bytes"]),
@@ -459,7 +459,7 @@ def write_build_speed_report(path: Path, entry: dict[str, Any]) -> None:
 
 def _cores_busy(series: dict[str, Any]) -> str:
     """Median CPU time over median wall time, as "1.87"; "-" where either is missing."""
-    cpu, wall = series.get("median_cpu_s"), series.get("median_s")
+    cpu, wall = series.get("cpu_median_s"), series.get("median_s")
     return f"{cpu / wall:.2f}" if cpu is not None and wall else "-"
 
 

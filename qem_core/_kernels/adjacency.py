@@ -44,6 +44,20 @@ def _opposite(faces, f, a, b):
 opposite = numba.njit(cache=True, inline="always")(_opposite)
 
 
+def _face_across(faces, start, count, pool, v, f, x):
+    """The first live face of v other than f with the corner x: on a manifold, the face
+    across the edge v-x from f; -1 if there is none (v-x a border edge)."""
+    s = start[v]
+    for i in range(count[v]):
+        g = pool[s + i]
+        if g != f and has_corner(faces, g, x):
+            return g
+    return -1
+
+
+face_across = numba.njit(cache=True, inline="always")(_face_across)
+
+
 class FaceLists(NamedTuple):
     start: np.ndarray  # (n,) int64
     count: np.ndarray  # (n,) int32

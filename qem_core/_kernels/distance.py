@@ -27,7 +27,7 @@ which the accumulated quadric prices.
 import numba
 import numpy as np
 
-from .adjacency import corner_of, has_corner
+from .adjacency import corner_of, face_across, has_corner
 from .heap import cost_key, key_cost
 from .memory import borrowing_kernel
 
@@ -231,12 +231,7 @@ def _star_distance2(vertices, faces, start, count, pool, a, b, px, py, pz,
             # across the edge v-x: that one next, the rest of the star only if it is
             # not close enough either. The distance is the least over the star all the
             # same (values within ``enough`` count for nothing, whichever is found).
-            across = -1
-            for j in range(count[v]):
-                g = pool[s + j]
-                if g != f and has_corner(faces, g, x):
-                    across = g
-                    break
+            across = face_across(faces, start, count, pool, v, f, x)
             if across >= 0:
                 d2 = min(d2, to_face2(vertices, faces, across, -1, 0.0, 0.0, 0.0, mx, my, mz))
             if d2 > enough:

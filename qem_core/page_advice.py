@@ -1,14 +1,17 @@
 """Numpy's huge-page advice, turned off while a build allocates its working arrays.
 
 On Linux numpy asks for transparent huge pages (``madvise(MADV_HUGEPAGE)``) on every
-array of 4 MiB or more. Where the kernel serves such requests with defragmentation
-(``/sys/kernel/mm/transparent_hugepage/defrag`` = ``madvise``, the usual default), a
-process's first faults on those arrays wait for the kernel to compact memory into 2 MiB
-pages. A dragon build allocates about 880 MiB of such arrays. On this project's machines
-(four fresh processes each way, getrusage around each build) its first build in a process
-spent 0.66-0.76 s of system time with the advice and 0.18-0.23 s without, and took
-2574-2612 ms instead of 3048-3096 ms (0.84x); the builds after it, which mostly reuse
-memory the process already holds, took 2441-2492 ms instead of 2388-2460 ms (1.01x).
+array of 4 MiB or more. A dragon build allocates about 880 MiB of such arrays. On this
+project's machines (four fresh processes each way, getrusage around each build) its first
+build in a process spent 0.66-0.76 s of system time with the advice and 0.18-0.23 s
+without, and took 2574-2612 ms instead of 3048-3096 ms (0.84x); the builds after it,
+which mostly reuse memory the process already holds, took 2441-2492 ms instead of
+2388-2460 ms (1.01x). The time is not compaction (/proc/vmstat's compact_stall stayed 0
+over such builds, measured 2026-12-03, with 139-144 huge pages faulted in each): a fresh
+process's huge pages come from memory the virtual machine has not touched yet, whose first
+write the host pays for, where small pages mostly come from pages freed a moment before;
+the second build's 139 huge pages cost about what its small pages do (217-224 ms of
+system time).
 
 The setting is numpy's, process-wide, so it is switched off on the first build to enter
 and restored when the last one leaves; an array another thread allocates meanwhile only

@@ -25,9 +25,13 @@ the rows, and no sinking of the edges re-priced above it. A candidate whose full
 The parts' records are then merged by cost (`record.append_merged`), so the sequence is
 the greedy one except for the band's candidates below the stop cost, which wait for the
 next round. That round shifts the runs by half a part, so the band is inside a part
-again. Rounds go on while more than ``PARALLEL_MIN_VERTICES`` vertices are live; the
-serial loop does the rest. The build tells its record in the input's numbers afterwards
-(`in_input_order`).
+again. Rounds go on on the build's whole arrays while more than
+``PARALLEL_MIN_VERTICES`` vertices are live, then on the live part copied out together
+(`compacted`), whose rounds' set-ups scan only its rows, while more than
+``COMPACTED_ROUNDS_MIN_VERTICES`` are; the serial loop does the rest, on that part too
+(`RoundsState` carries the rounds from the one to the other, so the cuts are those of
+rounds on the whole arrays). The build tells its record in the input's numbers
+afterwards (`in_input_order`).
 
 Deterministic: the cut, the loops and the merge depend on the mesh alone, not on the
 number of threads or their timing. With one core the parts run one after the other and
@@ -78,10 +82,12 @@ from .prepare import MeshEdges
 from .record import append_merged, make_record, with_room_for
 
 __all__ = [
+    "COMPACTED_ROUNDS_MIN_VERTICES",
     "PARALLEL_MIN_VERTICES",
     "PART_VERTICES",
     "LiveRows",
     "RoundArrays",
+    "RoundsState",
     "compacted",
     "contract_in_rounds",
     "in_input_order",
@@ -96,11 +102,19 @@ __all__ = [
 PART_VERTICES = 16384
 # Part labels are uint8 and PART_FROZEN is the last: at most this many parts a round.
 MAX_PARTS = PART_FROZEN
-# Rounds run while more vertices than this are live (and only for meshes this big). The
-# coarse levels are the ones the bands' deferrals would cost: with two halves, rounds
-# down to 16384 live vertices took 0.93-0.98x dragon's build time but raised the
-# Hausdorff distance of its 2 % levels up to 1.07x the best peer's (docs/performance.md).
+# Rounds run while more vertices than this are live (and only for meshes this big), on the
+# build's whole arrays. The coarse levels are the ones the bands' deferrals would cost:
+# with two halves, rounds down to 16384 live vertices took 0.93-0.98x dragon's build time
+# but raised the Hausdorff distance of its 2 % levels up to 1.07x the best peer's
+# (docs/performance.md).
 PARALLEL_MIN_VERTICES = 65536
+# Then they go on, on the live part compacted (`compacted`), down to this many live
+# vertices; the serial loop does the rest. A round's set-up scans every row of its
+# arrays: on dragon's whole arrays the rounds from 65536 down to 32768 live vertices
+# cost what they spared the serial loop (0.96x the first build, 1.04x the second); on
+# the compacted part, 0.95x and 0.90x (docs/performance.md). The levels below 65536
+# then wait for the bands too, within the quality aims (bench/results/quality*.md).
+COMPACTED_ROUNDS_MIN_VERTICES = 32768
 # A bound on the rounds of one build (each halves the live vertices or so; 4 on dragon).
 MAX_ROUNDS = 64
 # A round's stop cost: this quantile of the costs of its candidates at its start.
@@ -318,28 +332,44 @@ def _cut(cx: Complex, part: np.ndarray, n_parts: int, shift: float
     return vertices_in_part, faces_in_part
 
 
+class RoundsState:
+    """What a build's calls of `contract_in_rounds` carry from one to the next (the
+    rounds on its whole arrays, then those on the compacted live part): the rounds run so
+    far, whose parity shifts the cut, whether the rounds are over (one found nothing or
+    too little to do), and the kept arrays."""
+
+    def __init__(self) -> None:
+        self.rounds = 0
+        self.over = False
+        self.arrays = RoundArrays()
+
+
 def contract_in_rounds(cx: Complex, hood: Neighbourhood, pairs: Pairs, record: Record,
                        params: np.ndarray, make_scratch: Callable[[], Scratch], chunk: int,
-                       report: Callable[[int], None], min_live: int) -> tuple[Record, int]:
+                       report: Callable[[int], None], min_live: int,
+                       state: RoundsState | None = None) -> tuple[Record, int]:
     """Contract in parallel rounds (module docstring) while more than ``min_live``
-    vertices are live (PARALLEL_MIN_VERTICES for a build). Appends to ``record``; returns it (grown
-    if it had to be) and the number of contractions. ``report(contractions so far)``
-    is called from this thread while the loops run (`_run_loops`). Leaves ``hood.part``
-    all 0."""
+    vertices are live. Appends to ``record``; returns it (grown if it had to be) and the
+    number of contractions. ``report(contractions so far)`` is called from this thread
+    while the loops run (`_run_loops`). ``state``: the build's, when it calls this more
+    than once (on its whole arrays, then on the compacted live part): the rounds go on as
+    if in one call. Leaves ``hood.part`` all 0."""
+    state = RoundsState() if state is None else state
     done = 0
     # A contraction never makes an edge id: the first round's bound holds for them all.
     n_edge_ids = int(cx.face_edge.max()) + 1 if cx.face_edge.size else 0
-    arrays = RoundArrays()
     with ThreadPoolExecutor(os.cpu_count() or 1) as executor:
-        for round_index in range(MAX_ROUNDS):
+        while not state.over and state.rounds < MAX_ROUNDS:
             n_live = int(np.count_nonzero(cx.vertex_alive))
             if n_live <= min_live:
                 break
             restart_generations(hood)
             n_parts = min(MAX_PARTS, max(2, round(n_live / PART_VERTICES)))
             loops = _start_round(executor, cx, hood, pairs, params, make_scratch, n_parts,
-                                 0.5 * (round_index % 2), n_edge_ids, arrays)
+                                 0.5 * (state.rounds % 2), n_edge_ids, state.arrays)
+            state.rounds += 1
             if loops is None:
+                state.over = True
                 break
             round_done = _run_loops(executor, loops, chunk,
                                     lambda round_done, before=done: report(before + round_done))
@@ -347,7 +377,7 @@ def contract_in_rounds(cx: Complex, hood: Neighbourhood, pairs: Pairs, record: R
             hood.generation[0] = max(int(loop.hood.generation[0]) for loop in loops)
             done += round_done
             if round_done < MIN_ROUND_SHARE * n_live:
-                break
+                state.over = True
     hood.part[:] = 0
     return record, done
 

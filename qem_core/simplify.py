@@ -66,6 +66,8 @@ from .prepare import MeshEdges, prepare_mesh_and_edges, unique_edges
 from .progressive import ProgressiveMesh
 from .record import grown, make_record, with_room_for
 from .rounds import (
+    COMPACTED_ROUNDS_MIN_VERTICES,
+    RoundsState,
     compacted,
     contract_in_rounds,
     edges_by_part,
@@ -334,17 +336,29 @@ def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
     hood = make_neighbourhood(n)
     whole, live_rows, counts_before = cx, None, None
     if in_rounds:
-        record, done = contract_in_rounds(cx, hood, pairs, record, params,
-                                          lambda: _make_scratch(cx, options, None), chunk,
-                                          report, min_live=rounds_while_above)
+        state = RoundsState()
+
+        def run_rounds(min_live: int) -> None:
+            nonlocal record, done
+            before = done
+            record, round_done = contract_in_rounds(
+                cx, hood, pairs, record, params, lambda: _make_scratch(cx, options, None),
+                chunk, lambda count: report(before + count), min_live, state)
+            done += round_done
+
+        # The rounds run on the whole arrays, then on the live part alone, its rows
+        # together (rounds.compacted), down to COMPACTED_ROUNDS_MIN_VERTICES live
+        # vertices, and the serial loop after them on that part too; the work on it is
+        # told back at the end. No pairs in rounds: the pairs' ids would start past the
+        # compacted edges' (contract_greedily).
+        run_rounds(rounds_while_above)
         if done:
-            # The serial loop runs on the live part alone, its rows together
-            # (rounds.compacted), and tells its work back after. No pairs in rounds: the
-            # pairs' ids would start past the compacted edges' (contract_greedily).
             assert pairs.ends.size == 0
             cx, live_rows = compacted(whole)
             hood = make_neighbourhood(cx.vertices.shape[0])
             counts_before = record.counts.copy()
+            if COMPACTED_ROUNDS_MIN_VERTICES < rounds_while_above:
+                run_rounds(COMPACTED_ROUNDS_MIN_VERTICES)
     lists = make_face_lists(cx.faces, cx.vertices.shape[0], capacity=6 * cx.faces.shape[0] + 1024,
                             alive=cx.face_alive)
     # Candidates: the edges, then the pairs; their ids are the heap's ids.
@@ -353,7 +367,7 @@ def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
     exact = options.error_mode == "exact"
     if _costs_are_geometric(options, wedges):
         if live_rows is not None:
-            # After the rounds: all in part 0, every face live.
+            # After the rounds: all in part 0.
             ids, candidates, run_start, run_end = edges_by_part(
                 cx, hood.part, np.array([cx.faces.shape[0]]), live_rows.edges.size)
         else:

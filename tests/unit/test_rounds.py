@@ -289,6 +289,39 @@ def test_the_serial_loop_on_the_compacted_live_part_contracts_as_on_the_whole(
     assert same_levels(on_live_part, on_whole)
 
 
+@pytest.mark.parametrize("mesh, error_mode", [
+    (icosphere(4, jitter=0.1, seed=5), "additive"),
+    (perforated_icosphere(4, jitter=0.1, seed=5), "exact"),
+])
+def test_rounds_on_the_compacted_live_part_contract_as_on_the_whole(
+        small_rounds, monkeypatch, mesh, error_mode):
+    """Below PARALLEL_MIN_VERTICES the rounds go on on the compacted live part: the same
+    cuts (the live vertices in the same order), the same tie-breaks, the same parity of
+    the cut's shift (rounds.RoundsState), so the same levels as rounds on the whole
+    arrays all the way."""
+    vertices, faces = mesh
+    live_at_compaction = []
+    compact = rounds.compacted
+
+    def recorded(cx):
+        live_at_compaction.append(int(np.count_nonzero(cx.vertex_alive)))
+        return compact(cx)
+
+    monkeypatch.setattr("qem_core.simplify.compacted", recorded)
+    monkeypatch.setattr(rounds, "PARALLEL_MIN_VERTICES", 2000)
+    monkeypatch.setattr("qem_core.simplify.COMPACTED_ROUNDS_MIN_VERTICES", 200)
+    compacted_first = qem_core.build(vertices, faces, {"error_mode": error_mode})
+    # Two calls of the rounds, each of which contracted: on the whole arrays down to
+    # 2000 live vertices (one round: the next one is the first with its cut shifted), then
+    # on the compacted part down to 200.
+    assert len(small_rounds) == 2 and min(small_rounds) > 0
+    assert 200 < live_at_compaction[0] <= 2000
+    monkeypatch.setattr(rounds, "PARALLEL_MIN_VERTICES", 200)
+    on_whole = qem_core.build(vertices, faces, {"error_mode": error_mode})
+    assert len(small_rounds) == 3 and live_at_compaction[1] < live_at_compaction[0]
+    assert same_levels(compacted_first, on_whole)
+
+
 @pytest.mark.parametrize("error_mode", ["additive", "exact"])
 def test_compacting_keeps_the_live_rows_in_order_and_may_find_none(error_mode):
     """`rounds.compacted` of a complex with some rows dead takes the live ones in order

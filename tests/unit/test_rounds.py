@@ -310,7 +310,10 @@ def test_rounds_on_the_compacted_live_part_contract_as_on_the_whole(
     monkeypatch.setattr("qem_core.simplify.compacted", recorded)
     monkeypatch.setattr(rounds, "PARALLEL_MIN_VERTICES", 2000)
     monkeypatch.setattr("qem_core.simplify.COMPACTED_ROUNDS_MIN_VERTICES", 200)
-    compacted_first = qem_core.build(vertices, faces, {"error_mode": error_mode})
+    progress = []
+    compacted_first = qem_core.build(vertices, faces, {"error_mode": error_mode},
+                                     progress=progress.append)
+    assert np.all(np.diff(progress) >= 0) and progress[-1] == 1.0  # on across the two
     # Two calls of the rounds, each of which contracted: on the whole arrays down to
     # 2000 live vertices (one round: the next one is the first with its cut shifted), then
     # on the compacted part down to 200.

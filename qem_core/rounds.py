@@ -116,7 +116,7 @@ PARALLEL_MIN_VERTICES = 65536
 # then wait for the bands too, within the quality aims (bench/results/quality*.md);
 # down to 16384, igea's 13436-vertex level missed the Hausdorff aim (1.18x).
 COMPACTED_ROUNDS_MIN_VERTICES = 32768
-# A bound on the rounds of one build (each halves the live vertices or so; 4 on dragon).
+# A bound on the rounds of one build (each halves the live vertices or so; 6 on dragon).
 MAX_ROUNDS = 64
 # A round's stop cost: this quantile of the costs of its candidates at its start.
 STOP_QUANTILE = 0.5

@@ -349,14 +349,13 @@ class RoundsState:
 def contract_in_rounds(cx: Complex, hood: Neighbourhood, pairs: Pairs, record: Record,
                        params: np.ndarray, make_scratch: Callable[[], Scratch], chunk: int,
                        report: Callable[[int], None], min_live: int,
-                       state: RoundsState | None = None) -> tuple[Record, int]:
+                       state: RoundsState) -> tuple[Record, int]:
     """Contract in parallel rounds (module docstring) while more than ``min_live``
     vertices are live. Appends to ``record``; returns it (grown if it had to be) and the
     number of contractions. ``report(contractions so far)`` is called from this thread
-    while the loops run (`_run_loops`). ``state``: the build's, when it calls this more
-    than once (on its whole arrays, then on the compacted live part): the rounds go on as
-    if in one call. Leaves ``hood.part`` all 0."""
-    state = RoundsState() if state is None else state
+    while the loops run (`_run_loops`). ``state``: the build's, carried from its call on
+    its whole arrays to the one on the compacted live part, so the rounds go on as if in
+    one call. Leaves ``hood.part`` all 0."""
     done = 0
     # A contraction never makes an edge id: the first round's bound holds for them all.
     n_edge_ids = int(cx.face_edge.max()) + 1 if cx.face_edge.size else 0
@@ -455,10 +454,11 @@ class LiveRows(NamedTuple):
 
 def compacted(cx: Complex) -> tuple[Complex, LiveRows]:
     """The live part of ``cx`` as a complex of its own: its live vertices, faces and
-    edges, renumbered in the order they had. The serial loop after the rounds runs on
+    edges, renumbered in the order they had. The last rounds and the serial loop run on
     it: its few live rows, scattered over arrays sized for the input, now lie together.
-    An order-keeping renumbering changes no tie-break (equal costs are ordered by their
-    ends' numbers, lists by face number), so the loop makes the same contractions.
+    An order-keeping renumbering changes no cut or tie-break (parts are runs of live
+    vertices in order, equal costs are ordered by their ends' numbers, lists by face
+    number), so the rounds and the loop make the same contractions.
     Geometric costs only (no appearance attributes: the rounds run without them)."""
     assert cx.face_wedges.shape[0] == 0, "the rounds run without appearance attributes"
     live_vertices, vertex_row = _live_rows(cx.vertex_alive)
@@ -503,11 +503,11 @@ def _live_rows(flags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def write_back(small: Complex, rows: LiveRows, cx: Complex, record: Record,
                counts_before: np.ndarray) -> None:
-    """Tell what the loop did on ``small`` (`compacted` from ``cx``) in cx's numbers:
-    the mesh (positions, faces, what is alive) and the record's rows after
-    ``counts_before`` (its counts when the loop began). The loop's working state
-    (quadrics, refusal marks, edge ids) is not told back: nothing after the loop reads
-    it (`in_input_order`)."""
+    """Tell what the rounds and the loop did on ``small`` (`compacted` from ``cx``) in
+    cx's numbers: the mesh (positions, faces, what is alive) and the record's rows after
+    ``counts_before`` (its counts at the compaction). Their working state (quadrics,
+    refusal marks, edge ids) is not told back: nothing after the loop reads it
+    (`in_input_order`)."""
     move_rows(rows.vertices, small.vertices, cx.vertices)
     cx.vertex_alive[rows.vertices] = small.vertex_alive
     move_rows(rows.faces, rows.vertices[small.faces], cx.faces)

@@ -20,12 +20,14 @@ another. Smaller parts would freeze more of the mesh in their bands.
 Each loop stops before a candidate that costs more than the round's stop cost, the
 ``STOP_QUANTILE`` quantile of the costs of all the round's candidates when it starts, so
 its heap keeps out the edges priced above that cost (they are parked, see heap.py): half
-the rows, and no sinking of the edges re-priced above it. A candidate whose full cost
-(the distance and volume terms, priced at the top) passes the stop cost waits too.
-The parts' records are then merged by cost (`record.append_merged`), so the sequence is
-the greedy one except for the band's candidates below the stop cost, which wait for the
-next round. That round shifts the runs by half a part, so the band is inside a part
-again. Rounds go on on the build's whole arrays while more than
+the rows, and no sinking of the edges re-priced above it. A parked edge is not priced
+again in the round (contract.py): a contraction at one of its ends almost never brings
+it back below the stop cost. A candidate whose full cost (the distance and volume terms,
+priced at the top) passes the stop cost waits too. The parts' records are then merged
+by cost (`record.append_merged`), so the sequence is the greedy one except for the
+band's candidates below the stop cost, and the rare parked edge whose cost fell below
+it, which wait for the next round. That round shifts the runs by half a part, so the
+band is inside a part again. Rounds go on on the build's whole arrays while more than
 ``PARALLEL_MIN_VERTICES`` vertices are live, then on the live part copied out together
 (`compacted`), whose rounds' set-ups scan only its rows, while more than
 ``COMPACTED_ROUNDS_MIN_VERTICES`` are; the serial loop does the rest, on that part too

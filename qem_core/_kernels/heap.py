@@ -37,7 +37,8 @@ from .memory import borrowing_kernel
 ARITY = 4
 _LOW32 = (1 << 32) - 1
 # ``position`` of an edge kept out of the heap because its cost is above the loop's stop
-# cost (`update_or_park`): not missing, not a candidate this round.
+# cost (`update_or_park`): not missing, not a candidate this round, and not priced again
+# in it (contract.py).
 PARKED = -2
 
 

@@ -17,14 +17,18 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import qem_core
-from qem_core import rounds
-from qem_core._kernels.link import PART_FROZEN
+from qem_core import rounds, simplify
+from qem_core._kernels.adjacency import make_face_lists
+from qem_core._kernels.contract import update_vertex_edges
+from qem_core._kernels.heap import PARKED, cost_key, make_heap
+from qem_core._kernels.link import PART_FROZEN, make_neighbourhood
 from qem_core._kernels.partition import (
     faces_by_lowest_corner,
     order_by_code,
     part_edges,
     renumber_ids,
 )
+from qem_core._kernels.quadrics import QUADRIC_SIZE
 from qem_core._kernels.runs import merge_by_running_max
 from qem_core.prepare import unique_edges
 from qem_core.progressive import ProgressiveMesh
@@ -470,3 +474,34 @@ def test_part_edges_writes_within_each_region_and_counts_all():
     assert found.tolist() == [5, 3]
     assert ends[:2].tolist() == [[0, 1], [1, 2]]
     assert ends[2:].tolist() == [[4, 5], [5, 6], [6, 4]]
+
+
+def test_a_parked_edge_is_not_priced_again_in_its_round():
+    """After a contraction into v, v's edges get fresh costs in the heap, but an edge
+    parked above the round's stop cost stays parked, unpriced, even where its cost is
+    now below that cost: it waits for the next round (contract.py)."""
+    vertices, faces = icosphere(1)
+    n = vertices.shape[0]
+    options = qem_core.BuildOptions()
+    cx, _ = simplify._initial_complex(vertices, faces, options, unique_edges(faces, n), None,
+                                      owned=False)
+    lists = make_face_lists(cx.faces, n, 6 * cx.faces.shape[0] + 1024, alive=cx.face_alive)
+    hood = make_neighbourhood(n)
+    v = 0
+    ends = np.stack([cx.faces, np.roll(cx.faces, -1, axis=1)], axis=2)
+    v_edges = np.unique(cx.face_edge[(ends == v).any(axis=2)])
+    heap = make_heap(int(cx.face_edge.max()) + 1)
+    parked = int(v_edges[0])
+    heap.position[parked] = PARKED
+    stop_key = cost_key(np.inf)  # every fresh cost is below it
+    look = simplify._look(cx, simplify._make_scratch(cx, options, None))
+    update_vertex_edges(cx.vertices, cx.vertex_quadrics, cx.vertex_refused, cx.edge_quadrics,
+                        cx.faces, cx.face_alive, cx.face_edge, lists.start, lists.count,
+                        lists.pool, hood.near, hood.generation, hood.retry, hood.part,
+                        heap.entries, heap.position, heap.size, stop_key, np.int64(v),
+                        np.bool_(False), False, simplify.RANK_TOLERANCE, np.zeros(QUADRIC_SIZE),
+                        np.zeros(3), look)
+    assert heap.position[parked] == PARKED
+    priced = v_edges[1:]
+    assert heap.size[0] == priced.size and np.all(heap.position[priced] >= 0)
+    assert sorted(heap.entries[: heap.size[0], 2].tolist()) == priced.tolist()

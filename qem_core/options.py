@@ -107,8 +107,8 @@ class BuildOptions:
         sequences are merged by cost, and the next round shifts the cuts by half a part.
         The order is the greedy one except that the bands' cheap contractions wait a
         round, and the result does not depend on the number of cores or threads. About
-        1.8-2x faster on two cores (dragon: 2.55 s against 4.66 s, and 1.95 s against
-        3.89 s in a faster hour, docs/performance.md).
+        about 2x faster on two cores (dragon: 1.89 s against 3.89 s, and 2.55 s against
+        4.66 s in a slower hour, docs/performance.md).
         False: one strictly greedy sequence, as for smaller meshes, meshes with
         appearance attributes, pairs or volume preservation.
     """

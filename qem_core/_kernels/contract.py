@@ -31,7 +31,8 @@ is parked out of the heap (heap.update_or_park) rather than sunk to its place, a
 parked, unpriced, until the round ends: a contraction at one of its ends almost never
 brings it back below that cost (quadrics only grow; on dragon 0.07 % of 1.74 million
 such prices did, through the truncated placement of nearly flat quadrics), and pricing
-them took a tenth of the loops' time. The next round prices every edge afresh.
+them took about 8 % of a build's CPU time (docs/performance.md). The next round prices
+every edge afresh.
 
 The loop runs in chunks of ``max_steps`` contractions so Python can report progress, and
 stops early with a status code when an array is full (Python grows it and resumes).

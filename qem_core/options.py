@@ -105,9 +105,10 @@ class BuildOptions:
         vertices, with a band of frozen vertices between them, and each part is
         contracted greedily by a loop of its own, in threads, up to a common cost; the
         sequences are merged by cost, and the next round shifts the cuts by half a part.
-        The order is the greedy one except that the bands' cheap contractions wait a
-        round, and the result does not depend on the number of cores or threads. About
-        about 2x faster on two cores (dragon: 1.89 s against 3.89 s, and 2.55 s against
+        The order is the greedy one except that the bands' cheap contractions, and the
+        rare edge whose cost fell below the round's after it was parked, wait a round,
+        and the result does not depend on the number of cores or threads. About
+        2x faster on two cores (dragon: 1.89 s against 3.89 s, and 2.55 s against
         4.66 s in a slower hour, docs/performance.md).
         False: one strictly greedy sequence, as for smaller meshes, meshes with
         appearance attributes, pairs or volume preservation.

@@ -488,8 +488,8 @@ def test_a_parked_edge_is_not_priced_again_in_its_round():
     lists = make_face_lists(cx.faces, n, 6 * cx.faces.shape[0] + 1024, alive=cx.face_alive)
     hood = make_neighbourhood(n)
     v = 0
-    ends = np.stack([cx.faces, np.roll(cx.faces, -1, axis=1)], axis=2)
-    v_edges = np.unique(cx.face_edge[(ends == v).any(axis=2)])
+    v_edges = np.array(sorted(edge for key, edge in cx.edge_slot.items()
+                              if v in divmod(key, n)))
     heap = make_heap(int(cx.face_edge.max()) + 1)
     parked = int(v_edges[0])
     heap.position[parked] = PARKED

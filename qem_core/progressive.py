@@ -33,9 +33,11 @@ from .errors import CorruptFileError, InvalidOptionsError
 from .mesh import Mesh
 from .split_checks import (
     WEDGE_RUN_ARRAYS,
+    check_level,
     check_splits,
     check_wedge_arrays,
     check_wedge_splits,
+    coerced_splits,
 )
 
 __all__ = [
@@ -208,14 +210,17 @@ class ProgressiveMesh:
         """The mesh at n vertices (clamped into [n_base, n_full]).
 
         Returns vertices (n, 3) float64 and faces (F, 3) int32; every vertex is
-        referenced. The served n is ``len(vertices)``.
+        referenced. The served n is ``len(vertices)``. Raises CorruptFileError when a
+        split relabels a face that has no corner at its vertex (`check_splits` checks
+        indices only; `qem_core.load` replays every split once, so this is for meshes
+        made from arrays).
         """
         n = self.clamp(n)
         k = n - self.n_base
         vertices = np.zeros((n, 3))
         vertices[: self.n_base] = self.base_vertices
         faces = self.face_corners[: self.level_faces[k]].copy()
-        apply_split_run(
+        misses = apply_split_run(
             vertices,
             faces,
             self.split_vertex[:k],
@@ -224,6 +229,11 @@ class ProgressiveMesh:
             self.relabel_faces,
             self.n_base,
         )
+        if misses:
+            raise CorruptFileError(
+                f"inconsistent vertex splits: {misses} relabelled faces have no corner at "
+                "their split's vertex"
+            )
         return vertices, faces
 
     def splits(self, n_from: int, n_to: int) -> VertexSplits:
@@ -337,8 +347,10 @@ def apply_splits(
     """Refine lod(n_from) = (vertices, faces) by ``splits``; returns lod(n_to).
 
     The inputs are not modified. Raises InvalidOptionsError when the mesh is not at the
-    level the splits start from.
+    level the splits start from, CorruptFileError when the splits are not a consistent
+    run of splits.
     """
+    splits = coerced_splits(splits)
     check_splits(
         splits.n_from,
         splits.faces_from,
@@ -348,14 +360,10 @@ def apply_splits(
         splits.relabel_offsets,
         splits.relabel_faces,
     )
-    if vertices.shape[0] != splits.n_from or faces.shape[0] != splits.faces_from:
-        raise InvalidOptionsError(
-            f"these splits start from {splits.n_from} vertices and {splits.faces_from} "
-            f"faces; the mesh has {vertices.shape[0]} and {faces.shape[0]}"
-        )
+    vertices, faces = check_level(vertices, faces, splits.n_from, splits.faces_from)
     out_vertices = np.zeros((splits.n_to, 3))
     out_vertices[: splits.n_from] = vertices
-    out_faces = np.concatenate([faces.astype(np.int32, copy=False), splits.new_faces])
+    out_faces = np.concatenate([faces, splits.new_faces])
     misses = apply_split_run(
         out_vertices,
         out_faces,
@@ -397,6 +405,12 @@ def apply_wedge_splits(
         )
     if check:
         check_wedge_splits(splits, wedge_values.shape[1])
+        if face_wedges.size and (
+            face_wedges.min() < 0 or face_wedges.max() >= wedges.wedges_from
+        ):
+            raise InvalidOptionsError(
+                f"a face corner names a wedge outside 0..{wedges.wedges_from - 1}"
+            )
     values = np.zeros((wedges.wedges_to, wedge_values.shape[1]), np.float32)
     values[: wedges.wedges_from] = wedge_values
     out = np.concatenate([face_wedges.astype(np.int32, copy=False), wedges.new_face_wedges])

@@ -205,4 +205,8 @@ def _checked_progressive_mesh(arrays: dict, metadata: dict) -> ProgressiveMesh:
     pm = ProgressiveMesh(**arrays, metadata=metadata,
                          texture=None if texture is None else texture.tobytes())
     pm.vertex_map = vertex_map
+    # The index checks above cannot see a relabelled face without a corner at its split's
+    # vertex, which would serve wrong levels and stop the stream's encoder: one replay of
+    # every split (milliseconds; the server keeps loaded meshes) finds it.
+    pm.lod(pm.n_full)
     return pm

@@ -11,12 +11,19 @@ from typing import TYPE_CHECKING, NoReturn
 import numpy as np
 
 from .attributes import AttributeLayout
-from .errors import CorruptFileError
+from .errors import CorruptFileError, InvalidOptionsError
 
 if TYPE_CHECKING:
     from .progressive import VertexSplits
 
-__all__ = ["WEDGE_RUN_ARRAYS", "check_splits", "check_wedge_arrays", "check_wedge_splits"]
+__all__ = [
+    "WEDGE_RUN_ARRAYS",
+    "check_level",
+    "check_splits",
+    "check_wedge_arrays",
+    "check_wedge_splits",
+    "coerced_splits",
+]
 
 # The per-split runs of a progressive mesh's wedge arrays (progressive.WEDGE_ARRAYS
 # puts the base values and the face corners' wedges before them).
@@ -72,6 +79,57 @@ def check_splits(
         np.any(relabel_faces < 0) or np.any(relabel_faces >= faces_before[relabel_at])
     ):
         fail("a split relabels a face that does not exist yet")
+
+
+def coerced_splits(splits: VertexSplits) -> VertexSplits:
+    """``splits`` with the dtypes the refinement kernels take, and its counts and
+    positions checked against its number of splits (`check_splits` checks the indices).
+    Raises CorruptFileError for split data that is not a run of splits."""
+    k = np.shape(splits.split_vertex)[0] if np.ndim(splits.split_vertex) == 1 else -1
+    integer_arrays = (splits.split_vertex, splits.new_faces, splits.new_face_counts,
+                      splits.relabel_offsets, splits.relabel_faces)
+    if k < 0 or not all(np.asarray(a).dtype.kind in "iu" for a in integer_arrays):
+        raise CorruptFileError("inconsistent vertex splits: the indices are not integer arrays")
+    positions = np.asarray(splits.split_positions)
+    if positions.shape != (k, 2, 3) or positions.dtype.kind not in "fiu":
+        raise CorruptFileError(
+            f"inconsistent vertex splits: positions have shape {positions.shape}, "
+            f"expected ({k}, 2, 3)"
+        )
+    counts = (splits.n_from, splits.n_to, splits.faces_from)
+    if not all(isinstance(n, int | np.integer) and n >= 0 for n in counts):
+        raise CorruptFileError(
+            "inconsistent vertex splits: n_from, n_to and faces_from must be counts"
+        )
+    if splits.n_to != splits.n_from + k:
+        raise CorruptFileError(
+            f"inconsistent vertex splits: {k} splits cannot refine {splits.n_from} vertices "
+            f"to {splits.n_to}"
+        )
+    return splits._replace(
+        split_vertex=np.asarray(splits.split_vertex, np.int32),
+        split_positions=positions.astype(np.float64, copy=False),
+        new_faces=np.asarray(splits.new_faces, np.int32),
+        new_face_counts=np.asarray(splits.new_face_counts, np.int32),
+        relabel_offsets=np.asarray(splits.relabel_offsets, np.int64),
+        relabel_faces=np.asarray(splits.relabel_faces, np.int32),
+    )
+
+
+def check_level(vertices, faces, n_vertices: int, n_faces: int) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh a run of splits starts from, as float64 (n, 3) vertices and int32 (F, 3)
+    faces; InvalidOptionsError when it is not a mesh at that level."""
+    vertices, faces = np.asarray(vertices), np.asarray(faces)
+    if vertices.shape != (n_vertices, 3) or faces.shape != (n_faces, 3):
+        raise InvalidOptionsError(
+            f"these splits start from {n_vertices} vertices and {n_faces} faces; the mesh "
+            f"has vertices of shape {vertices.shape} and faces of shape {faces.shape}"
+        )
+    if vertices.dtype.kind not in "fiu" or faces.dtype.kind not in "iu":
+        raise InvalidOptionsError("vertices must be numbers and faces integers")
+    if faces.size and (faces.min() < 0 or faces.max() >= n_vertices):
+        raise InvalidOptionsError(f"a face uses a vertex outside 0..{n_vertices - 1}")
+    return vertices.astype(np.float64, copy=False), faces.astype(np.int32, copy=False)
 
 
 def check_wedge_arrays(arrays: dict, level_faces: np.ndarray, layout: object) -> None:

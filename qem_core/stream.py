@@ -265,7 +265,7 @@ def _frame_symbols(
         grid.quantise(splits.split_positions), positions, position_slots, split_context,
     )  # fmt: skip
     if status:
-        raise ValueError("inconsistent splits: a relabelled face has no corner s")
+        raise CorruptFileError("inconsistent vertex splits: a relabelled face has no corner s")
     split_back = splits.n_from + np.arange(k) - splits.split_vertex
     return FrameSymbols(
         splits.n_from, split_back, splits.new_face_counts, codes, thirds, steps, walks, backs,

@@ -222,6 +222,41 @@ def test_apply_splits_leaves_its_inputs_alone_and_refuses_the_wrong_level(built)
         qem_core.apply_splits(other_vertices, other_faces, pm.splits(n1, n2))
 
 
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        # apply_splits sizes its output by n_to and the kernel writes a row per split:
+        # a wrong n_to or too few positions wrote or read past the arrays' ends.
+        (lambda s: s._replace(n_to=s.n_from), "cannot refine"),
+        (lambda s: s._replace(n_to=10**12), "cannot refine"),
+        (lambda s: s._replace(n_to=-1), "must be counts"),
+        (lambda s: s._replace(split_positions=s.split_positions[:1]), "positions have shape"),
+        (lambda s: s._replace(split_vertex=s.split_vertex.astype(float)), "integer arrays"),
+    ],
+)
+def test_apply_splits_refuses_splits_that_are_not_a_run(built, change, match):
+    pm = built("sphere")
+    n1, n2 = pm.n_base + 3, pm.n_base + 40
+    with pytest.raises(qem_core.CorruptFileError, match=match):
+        qem_core.apply_splits(*pm.lod(n1), change(pm.splits(n1, n2)))
+
+
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        (lambda v, f: (v[:, :2], f), "start from"),
+        (lambda v, f: (v, f.astype(np.int64) + 2**32), "outside"),
+        (lambda v, f: (v, f - 1), "outside"),
+        (lambda v, f: (v, f.astype(float)), "faces integers"),
+    ],
+)
+def test_apply_splits_refuses_a_mesh_that_is_not_a_level(built, change, match):
+    pm = built("sphere")
+    n1, n2 = pm.n_base + 3, pm.n_base + 40
+    with pytest.raises(qem_core.InvalidOptionsError, match=match):
+        qem_core.apply_splits(*change(*pm.lod(n1)), pm.splits(n1, n2))
+
+
 def test_empty_splits_change_nothing(built):
     pm = built("sphere")
     n = pm.n_base + 10

@@ -279,6 +279,19 @@ def test_checksummed_but_inconsistent_arrays_are_refused(saved, name, index, val
     _corrupt(forged, match)
 
 
+def test_a_relabel_of_a_face_without_the_split_vertex_is_refused(built, saved):
+    """Every index in range, checksum valid, but a split relabels a face that has no
+    corner at its vertex: the levels would be wrong and the stream encoder would stop,
+    so loading replays the splits and refuses the file."""
+    pm = built["perforated_sphere"]
+    k = int(np.searchsorted(pm.relabel_offsets, 0, side="right")) - 1  # split of entry 0
+    s = int(pm.split_vertex[k])
+    _, faces = pm.lod(pm.n_base + k)
+    elsewhere = next(f for f in range(faces.shape[0]) if s not in faces[f])
+    forged = _forge(saved["perforated_sphere"], patch=_set_value("relabel_faces", 0, elsewhere))
+    _corrupt(forged, "no corner at their split's vertex")
+
+
 _DROP = object()  # as a value: delete the entry's field instead
 
 

@@ -120,6 +120,9 @@ def test_wedge_splits_refuse_the_wrong_level_and_damaged_records(spot_pm):
     for wedges in damaged:
         with pytest.raises(qem_core.CorruptFileError, match="inconsistent wedge"):
             qem_core.apply_wedge_splits(face_wedges, values, splits._replace(wedges=wedges))
+    # A face corner naming a wedge that is not there (as_mesh then indexed past them).
+    with pytest.raises(qem_core.InvalidOptionsError, match="names a wedge outside"):
+        qem_core.apply_wedge_splits(face_wedges + values.shape[0], values, splits)
     # Left alone, the inputs are not modified.
     assert np.array_equal(face_wedges, spot_pm.wedge_level(n1)[0])
 

@@ -27,6 +27,9 @@ from .options import BuildOptions
 __all__ = ["AttributeLayout", "Wedges", "corner_values_to_mesh", "make_wedges"]
 
 # Attributes in the order they sit in a value row, with the option that weighs them.
+# The largest weighted attribute value kept: half float32's range, so that sums of a few
+# stay finite when stored.
+FLOAT32_HEADROOM = float(np.finfo(np.float32).max) / 2
 _CHANNELS = (("uv", 2, "uv_weight"), ("color", None, "color_weight"),
              ("normal", 3, "normal_weight"))
 
@@ -118,6 +121,13 @@ def make_wedges(mesh: Mesh, face_map: np.ndarray, prepared_faces: np.ndarray,
             raise InvalidMeshError(f"attribute {name!r} must have {width} components")
         if not np.isfinite(per_corner).all():
             raise InvalidMeshError(f"attribute {name!r} holds NaN or infinite values")
+        # Weighted values are stored as float32 (the .qpm, the split stream's grid).
+        largest = float(np.abs(per_corner).max(initial=0.0))
+        if largest * weight * diagonal > FLOAT32_HEADROOM:
+            raise InvalidMeshError(
+                f"attribute {name!r} has values up to {largest:.3g}; weighted by "
+                f"{weight_option}={weight:g} they pass the float32 range they are stored in"
+            )
         columns.append(per_corner)
         names.append(name)
         widths.append(per_corner.shape[1])

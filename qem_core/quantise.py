@@ -148,7 +148,9 @@ def _steps(low: np.ndarray, high: np.ndarray, top) -> np.ndarray:
     """Step of a grid of `top` steps per axis from low to high (1 / top on a flat axis,
     so every point on it quantises to 0)."""
     high = np.asarray(high, np.float64)
-    return np.where(high > low, high - low, 1.0) / top
+    # At least the smallest normal float64: a box a few subnormals across would give a
+    # step of 0 (positions then quantised to NaN), where this puts them all at its origin.
+    return np.maximum(np.where(high > low, high - low, 1.0) / top, np.finfo(np.float64).tiny)
 
 
 def _quantise(values, origin: np.ndarray, step: np.ndarray, top) -> np.ndarray:

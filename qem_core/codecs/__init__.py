@@ -5,12 +5,14 @@ GLB and the msgpack form.
     encode_mesh(vertices, faces, format, ...) -> bytes    write
     write_mesh(mesh, format, ...) -> bytes                write a Mesh
     decode_msgpack_mesh(data) -> Mesh                     the compact msgpack form
+    check_float32_positions(vertices)                     refuse what float32 cannot hold
     MEDIA_TYPES                                           format -> HTTP content type
 
 One module per format (`ply`, `obj`, `stl`, `off`, `glb`, `msgpack_mesh`); `registry`
 maps format names to them. docs/formats.md documents every layout.
 """
 
-from .registry import MEDIA_TYPES, decode_msgpack_mesh, encode_mesh, load_mesh, write_mesh
+from . import registry
+from .registry import *  # noqa: F403 (the package's names are the registry's)
 
-__all__ = ["MEDIA_TYPES", "decode_msgpack_mesh", "encode_mesh", "load_mesh", "write_mesh"]
+__all__ = registry.__all__

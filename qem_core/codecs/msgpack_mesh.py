@@ -180,7 +180,10 @@ def read_msgpack(data: bytes) -> Mesh:
     if (
         not isinstance(bbox, list)
         or len(bbox) != 6
-        or not all(isinstance(x, int | float) and math.isfinite(x) for x in bbox)
+        or not all(
+            isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+            for x in bbox
+        )
     ):
         raise MeshFormatError("'bbox' must be 6 finite numbers: min x y z, max x y z")
     encoding = message.get("position_encoding")
@@ -213,7 +216,13 @@ def read_msgpack(data: bytes) -> Mesh:
         if key not in _ATTRIBUTE_WIDTHS or not isinstance(entry, dict):
             raise MeshFormatError(f"unknown attribute {key!r}; known: {sorted(_ATTRIBUTE_WIDTHS)}")
         width = entry.get("components")
-        if width not in _ATTRIBUTE_WIDTHS[key] or entry.get("type") != "f32":
+        # A float 3.0 passes `in` and then breaks reshape (TypeError), as position_bits.
+        if (
+            not isinstance(width, int)
+            or isinstance(width, bool)
+            or width not in _ATTRIBUTE_WIDTHS[key]
+            or entry.get("type") != "f32"
+        ):
             raise MeshFormatError(
                 f"attribute {key!r} must be f32 with {_ATTRIBUTE_WIDTHS[key]} components"
             )

@@ -42,6 +42,9 @@ _SLASH = ord("/")
 
 def read_obj(data: bytes) -> Mesh:
     """Decode an OBJ file into a Mesh. Raises MeshFormatError."""
+    # A UTF-8 byte-order mark (editors on Windows write one) would hide the first line,
+    # and with it the first vertex: every index after it would name the wrong vertex.
+    data = data.removeprefix(b"\xef\xbb\xbf")
     data = data.replace(b"\\\r\n", b" ").replace(b"\\\n", b" ")  # line continuations
     matches = _LINE.findall(data)
     lines: dict[bytes, list[bytes]] = {b"v": [], b"vt": [], b"vn": [], b"f": []}

@@ -28,7 +28,14 @@ from .off import is_off, read_off
 from .ply import read_ply, write_ply
 from .stl import is_ascii_stl, is_binary_stl, read_stl
 
-__all__ = ["MEDIA_TYPES", "load_mesh", "encode_mesh", "write_mesh", "decode_msgpack_mesh"]
+__all__ = [
+    "MEDIA_TYPES",
+    "check_float32_positions",
+    "decode_msgpack_mesh",
+    "encode_mesh",
+    "load_mesh",
+    "write_mesh",
+]
 
 _READERS: dict[str, Callable[[bytes], Mesh]] = {
     "ply": read_ply,
@@ -93,7 +100,7 @@ def load_mesh(source: MeshSource, format: str | None = None, name: str | None = 
         mesh = _READERS[fmt](data)
     except InvalidMeshError as error:
         raise type(error)(f"{label}: {error}") from None
-    except (ValueError, IndexError, OverflowError) as error:
+    except (ValueError, IndexError, OverflowError, TypeError) as error:
         # A reader missed a check: still the caller's bad file, not a crash.
         raise MeshFormatError(f"{label}: could not read as {fmt} ({error})") from error
     vertices, faces = validate_mesh_arrays(mesh.vertices, mesh.faces, what=label)
@@ -124,6 +131,33 @@ def _servable_texture(texture: bytes | None) -> bytes | None:
 def decode_msgpack_mesh(data: bytes) -> Mesh:
     """Decode and validate the compact msgpack form (docs/formats.md)."""
     return load_mesh(data, format="msgpack")
+
+
+# As Python floats: compared with a float32 scalar, a float64 past its range is cast
+# down to it (and warns).
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+_FLOAT32_TINY = float(np.finfo(np.float32).tiny)
+
+
+def check_float32_positions(vertices: np.ndarray, what: str = "mesh") -> None:
+    """Refuse positions that float32, the type of PLY, OBJ and GLB positions as written
+    here, cannot hold: a coordinate past its largest value (written as inf), or a mesh
+    smaller than its smallest normal number (written as zeros and subnormals, one point).
+    Raises InvalidMeshError."""
+    if vertices.size == 0:
+        return
+    largest = float(np.abs(vertices).max())
+    if largest > _FLOAT32_MAX:
+        raise InvalidMeshError(
+            f"{what}: a coordinate is {largest:.3g}, past float32's range (±{_FLOAT32_MAX:.3g}) "
+            "in which levels are written; scale the mesh down"
+        )
+    extent = float((vertices.max(axis=0) - vertices.min(axis=0)).max())
+    if 0.0 < extent < _FLOAT32_TINY:
+        raise InvalidMeshError(
+            f"{what}: the mesh is {extent:.3g} across, below float32's smallest normal "
+            f"number ({_FLOAT32_TINY:.3g}) in which levels are written; scale the mesh up"
+        )
 
 
 def encode_mesh(
@@ -171,6 +205,8 @@ def encode_mesh(
         raise InvalidMeshError("texture must be the bytes of a PNG or JPEG image")
     if corner_uvs is not None:
         corner_uvs = checked_corner_uvs(corner_uvs, faces.shape[0], "mesh")
+    if fmt != "msgpack" or quantize_bits is None:
+        check_float32_positions(vertices)  # msgpack's grid takes any finite positions
     if fmt == "msgpack":
         return write_msgpack(
             vertices,

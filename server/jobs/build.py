@@ -84,6 +84,8 @@ def run_build(
     try:
         with storage.blobs.local_path(record.upload_key) as path:
             mesh = codecs.load_mesh(path, name=record.name)
+        # Levels are served as float32 (PLY, OBJ, GLB): refuse now what could not be.
+        codecs.check_float32_positions(mesh.vertices, record.name)
         progress(_READ_SHARE, force=True)
         options = qem_core.BuildOptions.from_mapping(record.options)
         pm = qem_core.build_mesh(mesh, options, progress=progress.build_share)

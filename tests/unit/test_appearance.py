@@ -247,6 +247,15 @@ def test_nan_uvs_are_refused(spot):
         qem_core.build_mesh(bad)
 
 
+def test_uvs_past_float32_once_weighted_are_refused(spot):
+    """Regression: finite float32 UVs near its largest value, weighted, were stored as
+    inf, and the .qpm written could not be read back."""
+    uvs = (spot.corner_uvs * np.float32(3e38)).astype(np.float32)
+    bad = qem_core.Mesh(vertices=spot.vertices, faces=spot.faces, corner_uvs=uvs)
+    with pytest.raises(qem_core.InvalidMeshError, match="float32"):
+        qem_core.build_mesh(bad)
+
+
 @pytest.mark.parametrize("value", [-1.0, float("nan"), "heavy"])
 def test_bad_attribute_weights_are_refused(value):
     with pytest.raises(qem_core.InvalidOptionsError):

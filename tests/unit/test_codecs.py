@@ -443,6 +443,28 @@ BAD_FILES = {
         ),
         "msgpack",
     ),
+    # Regression: a float 3.0 passed the width check and broke reshape (TypeError), which
+    # failed the server's build as an internal error.
+    "msgpack_float_components": (
+        msgpack.packb(
+            {
+                **msgpack.unpackb(encode_mesh(_TRIANGLE, [[0, 1, 2]], "msgpack")),
+                "attributes": {
+                    "color": {"components": 3.0, "type": "f32", "data": bytes(36)},
+                },
+            }
+        ),
+        "msgpack",
+    ),
+    "msgpack_boolean_bbox": (
+        msgpack.packb(
+            {
+                **msgpack.unpackb(encode_mesh(_TRIANGLE, [[0, 1, 2]], "msgpack")),
+                "bbox": [True, 0, 0, 1, 1, 1],
+            }
+        ),
+        "msgpack",
+    ),
     "msgpack_future_version": (
         msgpack.packb(
             {**msgpack.unpackb(encode_mesh(_TRIANGLE, [[0, 1, 2]], "msgpack")), "version": 2}
@@ -458,6 +480,34 @@ def test_bad_files_are_refused_clearly(name):
     with pytest.raises(InvalidMeshError) as caught:
         load_mesh(blob, format=fmt)
     assert str(caught.value)  # a message, not a bare exception
+
+
+@pytest.mark.parametrize("fmt", ["ply", "obj", "glb", "msgpack"])
+@pytest.mark.parametrize("scale", [1e300, 1e-320])
+def test_positions_float32_cannot_hold_are_refused_on_writing(fmt, scale):
+    """Regression: written as inf, or as one point of zeros and subnormals."""
+    with pytest.raises(InvalidMeshError, match="float32"):
+        encode_mesh(np.asarray(_TRIANGLE) * scale, [[0, 1, 2]], fmt)
+
+
+@pytest.mark.parametrize("scale", [1e300, 1e-320])
+def test_msgpack_on_a_grid_writes_any_finite_positions(scale):
+    """The grid over the box holds them (a box a few subnormals across quantises to its
+    origin, where a step of 0 gave NaN)."""
+    vertices = np.asarray(_TRIANGLE, np.float64) * scale
+    blob = encode_mesh(vertices, [[0, 1, 2]], "msgpack", quantize_bits=16)
+    decoded = load_mesh(blob, format="msgpack")
+    assert np.isfinite(decoded.vertices).all()
+    assert np.allclose(decoded.vertices, vertices, rtol=0, atol=1e-4 * scale + 1e-300)
+
+
+def test_an_obj_with_a_byte_order_mark_reads_as_without():
+    """Regression: the mark hid the first line, so the first vertex was lost and every
+    index named the next vertex."""
+    text = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\n"
+    plain, marked = load_mesh(text, format="obj"), load_mesh(b"\xef\xbb\xbf" + text, format="obj")
+    assert np.array_equal(marked.vertices, plain.vertices)
+    assert np.array_equal(marked.faces, plain.faces)
 
 
 def test_unknown_format_and_source_are_named():

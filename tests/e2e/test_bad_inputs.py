@@ -45,6 +45,12 @@ BUILD_FAILURES = [
     ("truncated STL", "a.stl", b"\x00" * 80 + struct.pack("<I", 1000) + b"\x00" * 10, ["stl"]),
     ("OFF counts too large", "a.off", b"OFF\n100 100 0\n0 0 0\n", ["off", "vert"]),
     ("broken GLB", "a.glb", b"glTF" + struct.pack("<II", 2, 9999) + b"\x00" * 8, ["glb", "gltf"]),
+    # Levels are written as float32: these built, and were served as inf, or as one point
+    # whose split stream broke off mid-answer.
+    ("coordinates past float32", "a.obj", b"v 1e300 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\n",
+     ["float32"]),
+    ("a mesh below float32", "a.obj", b"v 1e-320 0 0\nv 0 1e-320 0\nv 0 0 1e-320\nf 1 2 3\n",
+     ["float32"]),
 ]
 
 
@@ -172,6 +178,33 @@ BAD_READS = [
 def test_bad_request(http, ready_mesh, case, method, path, params, status):
     path = path.format(mesh=f"/v1/meshes/{ready_mesh['id']}")
     assert_problem(http.request(method, path, params=params), status)
+
+
+@pytest.mark.parametrize(
+    "path",
+    [
+        "/healthz",
+        "/v1/meshes",
+        "{mesh}",
+        "{mesh}/lod?vertices=100&format=ply",
+        "{mesh}/splits?from=10&to=200",
+        "{mesh}/texture",
+        "/",
+    ],
+)
+def test_head_answers_as_get_without_the_body(http, ready_mesh, path):
+    """Regression: HEAD on the API fell through to the viewer's mount, a 404."""
+    path = path.format(mesh=f"/v1/meshes/{ready_mesh['id']}")
+    get, head = http.get(path), http.head(path)
+    assert (head.status_code, head.content) == (get.status_code, b"")
+    for name in ("content-type", "content-length", "etag", "cache-control"):
+        assert head.headers.get(name) == get.headers.get(name), name
+
+
+def test_head_on_an_unknown_mesh_is_a_404_without_a_body(http):
+    head = http.head("/v1/meshes/nothing-here")
+    assert (head.status_code, head.content) == (404, b"")
+    assert head.headers["content-type"] == PROBLEM
 
 
 def _multipart(disposition: bytes, content: bytes) -> dict:

@@ -2,7 +2,8 @@
 
 Reads ``v x y z`` (a 6-number ``v x y z r g b`` on every line gives "color"), ``vt u v``,
 ``vn x y z`` and ``f`` lines with corners ``v``, ``v/vt``, ``v//vn`` or ``v/vt/vn``,
-1-based or negative (relative to the lines read so far); polygons are fan-triangulated.
+1-based or negative (relative to the lines read so far); polygons are triangulated
+(`_polygons.py`).
 Texture coordinates go to `Mesh.corner_uvs` (one per face corner, as OBJ stores them);
 when every vertex has a single UV (no seams) they are also the "uv" vertex attribute,
 and the same rule turns ``vn`` into the "normal" attribute. Everything else (``mtllib``,
@@ -29,7 +30,7 @@ import numpy as np
 from ..errors import MeshFormatError
 from ..mesh import Mesh
 from ._corners import per_vertex
-from ._polygons import fan_corners
+from ._polygons import polygon_corners
 from ._text import count_tokens, parse_lines, parse_numbers
 
 __all__ = ["read_obj", "write_obj"]
@@ -60,7 +61,7 @@ def read_obj(data: bytes) -> Mesh:
     v_index, vt_index, vn_index = _corner_indices(b" ".join(lines[b"f"]), corner_counts)
     counters = _Counters(matches, corner_counts)
     v_index = counters.resolve(v_index, b"v", positions.shape[0])
-    triangles = fan_corners(corner_counts, "OBJ 'f' line", first_number=1)
+    triangles = polygon_corners(corner_counts, "OBJ 'f' line", first_number=1)
     faces = v_index[triangles]
 
     attributes = {}

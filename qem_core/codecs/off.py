@@ -9,8 +9,8 @@ Layout, one record per line, ``#`` starts a comment::
 
 ``N`` gives "normal", ``C`` gives "color" (values above 1 are taken as 0..255), ``ST``
 gives "uv"; vertex lines of unequal length keep positions only. Polygons are
-fan-triangulated; face colours are ignored. Binary OFF and the 4D / nD variants are
-refused.
+triangulated (fans; strips past 16 corners); face colours are ignored. Binary OFF and
+the 4D / nD variants are refused.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import numpy as np
 
 from ..errors import MeshFormatError
 from ..mesh import Mesh
-from ._polygons import fan_triangulate
+from ._polygons import triangulate_polygons
 from ._text import parse_lines, parse_numbers
 
 __all__ = ["read_off", "is_off"]
@@ -129,4 +129,4 @@ def _faces(lines: list[bytes]) -> np.ndarray:
     indices = numbers[first[face_of_corner] + 1 + corner_in_face]
     if not np.all((indices == np.floor(indices)) & (np.abs(indices) < 2.0**31)):
         raise MeshFormatError("OFF face lines hold a vertex index that is not an integer")
-    return fan_triangulate(corner_counts, indices.astype(np.int64), "OFF face")
+    return triangulate_polygons(corner_counts, indices.astype(np.int64), "OFF face")

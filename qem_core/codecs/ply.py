@@ -9,7 +9,7 @@ in Paul Bourke's "PLY - Polygon File Format" page):
   float colours above 1 are taken as 0..255); ``s t``, ``u v``, ``texture_u texture_v``
   or ``texture_s texture_t`` -> "uv".
 - ``face`` element: list ``vertex_indices`` (or ``vertex_index``) of any integer count
-  and index type; polygons are fan-triangulated. A list ``texcoord`` (MeshLab's
+  and index type; polygons are triangulated (`_polygons.py`). A list ``texcoord`` (MeshLab's
   per-corner UVs: u v for each corner, 2k values for a k-gon) -> `Mesh.corner_uvs`,
   and also "uv" when the vertex element has none and no vertex has two UVs.
 - Every other element and property, lists included, is skipped.
@@ -36,7 +36,7 @@ from ..errors import MeshFormatError
 from ..mesh import Mesh
 from . import _ply_records
 from ._corners import per_vertex
-from ._polygons import fan_corners, fan_triangulate
+from ._polygons import polygon_corners, triangulate_polygons
 from ._text import parse_numbers
 
 __all__ = ["read_ply", "write_ply"]
@@ -538,7 +538,7 @@ def _build_mesh(
             break
     counts, items = face_list
     indices = _as_indices(items)
-    faces = fan_triangulate(counts, indices, "PLY face")
+    faces = triangulate_polygons(counts, indices, "PLY face")
     corner_uvs = None
     if texcoord is not None:
         corner_uvs = _corner_uvs(counts, texcoord)
@@ -558,7 +558,7 @@ def _build_mesh(
 
 
 def _corner_uvs(corner_counts: np.ndarray, texcoord: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-    """(m, 3, 2) float32 UVs of the fan triangles' corners from the ``texcoord`` face
+    """(m, 3, 2) float32 UVs of the triangles' corners from the ``texcoord`` face
     list, which holds u v for each corner of its polygon (MeshLab's layout)."""
     uv_counts, uv_items = texcoord
     if not np.array_equal(uv_counts, 2 * np.asarray(corner_counts)):
@@ -568,7 +568,7 @@ def _corner_uvs(corner_counts: np.ndarray, texcoord: tuple[np.ndarray, np.ndarra
             f"{int(uv_counts[face])} '{_TEXCOORD}' values; it needs u v per corner"
         )
     corner_uv = uv_items.astype(np.float32).reshape(-1, 2)
-    return corner_uv[fan_corners(corner_counts, "PLY face")]
+    return corner_uv[polygon_corners(corner_counts, "PLY face")]
 
 
 def _colors(channels: list[np.ndarray], declared: list[np.dtype]) -> np.ndarray:

@@ -79,7 +79,8 @@ def load_mesh(source: MeshSource, format: str | None = None, name: str | None = 
         the file object's name.
 
     Returns a Mesh with float64 (n, 3) vertices, int32 (m, 3) faces (polygons
-    fan-triangulated), the attributes the file has, and `name`. Texture coordinates
+    triangulated: fans, strips past 16 corners), the attributes the file has, and
+    `name`. Texture coordinates
     stored per face corner (OBJ ``vt``, PLY ``texcoord``, GLB TEXCOORD_0, msgpack
     "corner_uvs") become `corner_uvs` (m, 3, 2) float32, and also the "uv" attribute
     where every vertex has one UV (OBJ, PLY, GLB); a GLB's vertices split at seams are

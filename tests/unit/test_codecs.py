@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from qem_core import InvalidMeshError, InvalidOptionsError, MeshFormatError, encode_mesh, load_mesh
+from qem_core.codecs._polygons import FAN_MAX_CORNERS
 from tests.tiny_meshes import OCTAHEDRON, icosphere
 
 WRITTEN = ["ply", "obj", "glb", "msgpack"]
@@ -292,6 +293,28 @@ def test_polygons_are_fan_triangulated():
     assert load_mesh(square, format="obj").faces.tolist() == [[0, 1, 2], [0, 2, 3]]
     off = b"OFF\n4 1 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n"
     assert load_mesh(off).faces.tolist() == [[0, 1, 2], [0, 2, 3]]
+
+
+@pytest.mark.parametrize("k", [FAN_MAX_CORNERS + 1, FAN_MAX_CORNERS + 2, 1000, 1001])
+def test_large_polygons_are_strips_of_low_degree(k):
+    """Past FAN_MAX_CORNERS a polygon is a zigzag strip, by hand for 17 and 18 corners:
+    the same area and orientation as a fan, every corner in at most four triangles
+    (a 50 000-corner fan took the build 32 s)."""
+    angles = np.linspace(0, 2 * np.pi, k, endpoint=False)
+    vertices = np.stack([np.cos(angles), np.sin(angles), np.zeros(k)], axis=1)
+    text = "".join(f"v {float(x)!r} {float(y)!r} 0\n" for x, y, _ in vertices)
+    text += "f " + " ".join(str(i + 1) for i in range(k)) + "\n"
+    faces = load_mesh(text.encode(), format="obj").faces
+    assert faces.shape == (k - 2, 3)
+    assert np.bincount(faces.reshape(-1), minlength=k).max() <= 4
+    a, b, c = (vertices[faces[:, j]] for j in range(3))
+    normals = np.cross(b - a, c - a)
+    assert np.all(normals[:, 2] > 0)  # every triangle turns as the polygon does
+    assert 0.5 * normals[:, 2].sum() == pytest.approx(0.5 * k * np.sin(2 * np.pi / k))
+    if k <= FAN_MAX_CORNERS + 2:
+        last = k - 1
+        expected = [[0, 1, last], [1, last - 1, last], [1, 2, last - 1], [2, last - 2, last - 1]]
+        assert faces[:4].tolist() == expected
 
 
 # -- bad input -------------------------------------------------------------------------

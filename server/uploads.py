@@ -190,7 +190,13 @@ class _MultipartState:
     def on_headers_finished(self) -> None:
         _, options = parse_options_header(self.disposition)
         name = options.get(b"name", b"").decode("utf-8", "replace")
-        if name == _FIELD and not self.found:
+        if name == _FIELD and self.found:
+            # Which of two files to keep would be a guess: the second was dropped unseen.
+            raise Problem(
+                "bad-upload", f"the multipart body has more than one field {_FIELD!r}; "
+                "upload one mesh per request"
+            )
+        if name == _FIELD:
             self.found = True
             self.in_file = True
             raw = options.get(b"filename")

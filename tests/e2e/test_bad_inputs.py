@@ -118,6 +118,12 @@ REFUSED_UPLOADS = [
     ),
     ("multipart without file", {"files": {"mesh": ("a.ply", b"x")}}, 400),
     (
+        # Regression: the second file was dropped unseen.
+        "multipart with two files",
+        {"files": [("file", ("a.ply", ascii_ply())), ("file", ("b.ply", ascii_ply()))]},
+        400,
+    ),
+    (
         "multipart boundary too long",
         {
             "headers": {"content-type": "multipart/form-data; boundary=" + "b" * 300},

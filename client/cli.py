@@ -16,7 +16,8 @@ machine-readable output on stdout. Each subcommand is one ``cmd_*`` function reg
 one ``add_*`` function in `SUBCOMMANDS`.
 
 Exit status: 0 success, 1 the server refused the request or the build failed, 2 bad usage,
-3 the server cannot be reached, 4 timed out, 130 interrupted.
+3 the server cannot be reached, 4 timed out, 130 interrupted, 141 the output's reader
+went away (a closed pipe, as ``qem ls | head -1``).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from .console import (
+    EXIT_BROKEN_PIPE,
     EXIT_FAILED,
     EXIT_INTERRUPTED,
     EXIT_OK,
@@ -52,6 +54,7 @@ from .http import (
     QemClientError,
     QemConnectionError,
     QemHTTPError,
+    QemTimeoutError,
 )
 from .local_commands import add_build, add_info, add_lod, add_simplify
 
@@ -61,6 +64,29 @@ __all__ = ["SUBCOMMANDS", "build_parser", "main"]
 _DEMO_MESHES = ("server/demo/spot.glb", "server/demo/spot.obj")
 
 log = logging.getLogger("qem")
+
+
+def _port(text: str) -> int:
+    """An argparse type: a TCP port, 0..65535 (0: any free one; uvicorn raised
+    OverflowError past 65535)."""
+    try:
+        port = int(text)
+    except ValueError:
+        port = -1
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a port (0..65535)")
+    return port
+
+
+def _seconds(text: str) -> float:
+    """An argparse type: a positive, finite number of seconds (nan waited forever)."""
+    try:
+        seconds = float(text)
+    except ValueError:
+        seconds = float("nan")
+    if not 0.0 < seconds < float("inf"):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a positive number of seconds")
+    return seconds
 
 
 def _client(args: argparse.Namespace) -> QemClient:
@@ -80,7 +106,7 @@ def add_serve(subparsers: argparse._SubParsersAction) -> None:
         description="Run the qem-lod service (settings also from QEM_* variables).",
     )
     parser.add_argument("--host", default="127.0.0.1", help="address to listen on")
-    parser.add_argument("--port", type=int, default=8000, help="port to listen on")
+    parser.add_argument("--port", type=_port, default=8000, help="port to listen on")
     parser.add_argument("--data-dir", type=Path, help="storage folder (QEM_DATA_DIR)")
     parser.add_argument("--workers", type=int, help="build worker processes (QEM_WORKERS)")
     parser.add_argument(
@@ -172,24 +198,27 @@ def add_upload(subparsers: argparse._SubParsersAction) -> None:
         help="build option, e.g. -O weighting=volume (repeatable)",
     )
     parser.add_argument("--no-wait", action="store_true", help="return once uploaded")
-    parser.add_argument("--timeout", type=float, help="give up waiting after this many s")
+    parser.add_argument("--timeout", type=_seconds, help="give up waiting after this many s")
     parser.set_defaults(run=cmd_upload)
 
 
 def cmd_upload(args: argparse.Namespace) -> int:
     if not args.input.is_file():
-        raise CliError(f"{args.input}: no such file", EXIT_USAGE)
+        what = "a directory, not a mesh file" if args.input.is_dir() else "no such file"
+        raise CliError(f"{args.input}: {what}", EXIT_USAGE)
     options = parse_option_pairs(args.option)
     show = not args.json
     with _client(args) as qem:
         bar = Bar("upload", show)
-        mesh_id = qem.upload(
-            args.input,
-            name=args.name,
-            options=options,
-            progress=lambda sent, total: bar.show(sent / total if total else 1.0),
-        )
-        bar.done()
+        try:
+            mesh_id = qem.upload(
+                args.input,
+                name=args.name,
+                options=options,
+                progress=lambda sent, total: bar.show(sent / total if total else 1.0),
+            )
+        finally:
+            bar.done()  # an error's message then starts a line of its own
         if show:
             note(f"uploaded {args.input} as {mesh_id}")
         if args.no_wait:
@@ -355,6 +384,9 @@ def main(argv: list[str] | None = None) -> int:
     except CliError as exc:
         note(f"qem {args.command}: {exc}")
         return exc.status
+    except QemTimeoutError as exc:
+        note(f"qem {args.command}: {exc}")
+        return EXIT_TIMEOUT
     except QemConnectionError as exc:
         note(f"qem {args.command}: {exc}")
         return EXIT_UNREACHABLE
@@ -373,6 +405,11 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         note("interrupted")
         return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        # The reader is gone: point stdout at /dev/null so that the flush at exit does not
+        # raise again, and end as a process killed by SIGPIPE would.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
 
 
 def _describe_problem(exc: QemHTTPError) -> str:

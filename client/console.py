@@ -4,13 +4,16 @@ helpers and the progress bar."""
 from __future__ import annotations
 
 import json
+import shutil
 import sys
+import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 __all__ = [
+    "EXIT_BROKEN_PIPE",
     "EXIT_FAILED",
     "EXIT_INTERRUPTED",
     "EXIT_OK",
@@ -30,6 +33,7 @@ __all__ = [
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_UNREACHABLE, EXIT_TIMEOUT = 0, 1, 2, 3, 4
 EXIT_INTERRUPTED = 130
+EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, as a process killed by it
 
 # Output suffix -> mesh format.
 OUTPUT_FORMATS = {
@@ -73,6 +77,11 @@ def write_atomically(output: str, content: bytes | Callable[[Path], None]) -> No
         sys.stdout.buffer.flush()
         return
     path = Path(output)
+    if path.is_symlink():
+        path = path.resolve()  # write the file the link names; the link stays
+    if path.exists() and not path.is_file():
+        _write_through(path, output, content)  # a FIFO or a device: a rename would replace it
+        return
     partial = path.with_name(path.name + ".part")
     try:
         if isinstance(content, bytes):
@@ -82,6 +91,22 @@ def write_atomically(output: str, content: bytes | Callable[[Path], None]) -> No
         partial.replace(path)
     except OSError as exc:
         partial.unlink(missing_ok=True)
+        raise CliError(f"cannot write {output}: {exc.strerror or exc}") from None
+
+
+def _write_through(path: Path, output: str, content: bytes | Callable[[Path], None]) -> None:
+    """Write into the existing non-regular file `path` (a FIFO, /dev/null...)."""
+    try:
+        with open(path, "wb") as target:
+            if isinstance(content, bytes):
+                target.write(content)
+                return
+            with tempfile.TemporaryDirectory() as folder:
+                staged = Path(folder) / path.name
+                content(staged)
+                with open(staged, "rb") as source:
+                    shutil.copyfileobj(source, target)
+    except OSError as exc:
         raise CliError(f"cannot write {output}: {exc.strerror or exc}") from None
 
 

@@ -25,6 +25,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+from urllib.parse import quote
 
 import httpx
 
@@ -36,9 +37,12 @@ __all__ = [
     "QemClientError",
     "QemConnectionError",
     "QemHTTPError",
+    "QemTimeoutError",
 ]
 
 DEFAULT_SERVER = "http://127.0.0.1:8000"
+# The members of a mesh's metadata that this client and the qem command read.
+_INFO_KEYS = ("id", "name", "status", "progress", "vertices", "faces", "min_vertices")
 _CHUNK = 1 << 20
 
 
@@ -48,6 +52,10 @@ class QemClientError(Exception):
 
 class QemConnectionError(QemClientError):
     """The server could not be reached or did not answer in time."""
+
+
+class QemTimeoutError(QemConnectionError):
+    """The server did not answer in time."""
 
 
 class QemHTTPError(QemClientError):
@@ -105,6 +113,9 @@ class QemClient:
         timeout: float = 60.0,
         transport: httpx.BaseTransport | None = None,
     ) -> None:
+        if token and not (token.isascii() and token.isprintable()):
+            # It goes in a header: httpx would raise UnicodeEncodeError or a protocol error.
+            raise QemClientError("the token must be printable ASCII (it is sent as a header)")
         headers = {"Authorization": f"Bearer {token}"} if token else {}
         self.base_url = _check_base_url(base_url)
         self._http = httpx.Client(
@@ -135,17 +146,38 @@ class QemClient:
         try:
             response = self._http.request(method, path, **kwargs)
         except httpx.TransportError as exc:
-            raise QemConnectionError(self._describe(exc)) from exc
+            raise self._transport_error(exc) from exc
         _raise_for_problem(response)
         return response
 
-    def _describe(self, exc: httpx.TransportError) -> str:
+    def _transport_error(self, exc: httpx.TransportError) -> QemConnectionError:
         if isinstance(exc, httpx.TimeoutException):
-            return f"{self.base_url} did not answer in time ({type(exc).__name__})"
-        return f"cannot reach the qem-lod server at {self.base_url} ({exc or type(exc).__name__})"
+            return QemTimeoutError(f"{self.base_url} did not answer in time ({type(exc).__name__})")
+        if isinstance(exc, httpx.RemoteProtocolError):
+            return QemConnectionError(
+                f"the connection to {self.base_url} broke off ({exc or type(exc).__name__})"
+            )
+        return QemConnectionError(
+            f"cannot reach the qem-lod server at {self.base_url} ({exc or type(exc).__name__})"
+        )
+
+    def _json(self, response: httpx.Response, *keys: str) -> Any:
+        """The JSON body of a qem-lod answer, checked to be a map with ``keys``."""
+        try:
+            body = response.json()
+        except ValueError:
+            body = None
+        if not isinstance(body, dict) or any(key not in body for key in keys):
+            raise QemClientError(
+                f"{response.request.method} {response.request.url.path} got an answer that is "
+                f"not qem-lod's ({response.status_code}, "
+                f"{response.headers.get('content-type', 'no content type')}); is "
+                f"{self.base_url} a qem-lod server?"
+            )
+        return body
 
     def health(self) -> dict[str, Any]:
-        return self._request("GET", "/healthz").json()
+        return self._json(self._request("GET", "/healthz"))
 
     def upload(
         self,
@@ -175,7 +207,10 @@ class QemClient:
                     if progress is not None:
                         progress(sent, total)
 
-        params: dict[str, Any] = {"name": name or path.name}
+        # A name from a file system that is not UTF-8 holds lone surrogates, which no
+        # query can carry: they go as U+FFFD.
+        name = (name or path.name).encode("utf-8", "replace").decode("utf-8")
+        params: dict[str, Any] = {"name": name}
         for key, value in (options or {}).items():
             params[key] = str(value).lower() if isinstance(value, bool) else value
         response = self._request(
@@ -185,15 +220,20 @@ class QemClient:
             content=body(),
             headers={"Content-Type": "application/octet-stream", "Content-Length": str(total)},
         )
-        return response.json()["id"]
+        return self._json(response, "id")["id"]
 
     def list(self) -> list[dict[str, Any]]:
         """Metadata of every mesh on the server, oldest first."""
-        return self._request("GET", "/v1/meshes").json()["meshes"]
+        meshes = self._json(self._request("GET", "/v1/meshes"), "meshes")["meshes"]
+        if not isinstance(meshes, list) or not all(
+            isinstance(mesh, dict) and all(key in mesh for key in _INFO_KEYS) for mesh in meshes
+        ):
+            raise QemClientError(f"{self.base_url} listed its meshes in an unknown form")
+        return meshes
 
     def info(self, mesh_id: str) -> dict[str, Any]:
         """Metadata of one mesh (``status``, ``progress``, ``vertices``...)."""
-        return self._request("GET", f"/v1/meshes/{mesh_id}").json()
+        return self._json(self._request("GET", _mesh_path(mesh_id)), *_INFO_KEYS)
 
     def wait_ready(
         self,
@@ -239,16 +279,25 @@ class QemClient:
         if n is not None:
             params["vertices"] = n
         headers = {"If-None-Match": etag} if etag else {}
-        response = self._request("GET", f"/v1/meshes/{mesh_id}/lod", params=params, headers=headers)
+        response = self._request("GET", _mesh_path(mesh_id, "/lod"), params=params, headers=headers)
         if response.status_code == 304:
             return None
-        error = response.headers.get("X-Lod-Error")
+        try:
+            n_vertices = int(response.headers["X-Lod-Vertices"])
+            n_faces = int(response.headers["X-Lod-Faces"])
+            error = response.headers.get("X-Lod-Error")
+            error = float(error) if error is not None else None
+        except (KeyError, ValueError):
+            raise QemClientError(
+                f"{self.base_url} sent a level without valid X-Lod-Vertices, X-Lod-Faces and "
+                "X-Lod-Error headers; is it a qem-lod server?"
+            ) from None
         return LodResponse(
             content=response.content,
             media_type=response.headers.get("Content-Type", ""),
-            n_vertices=int(response.headers["X-Lod-Vertices"]),
-            n_faces=int(response.headers["X-Lod-Faces"]),
-            error=float(error) if error is not None else None,
+            n_vertices=n_vertices,
+            n_faces=n_faces,
+            error=error,
             etag=response.headers.get("ETag"),
         )
 
@@ -261,7 +310,7 @@ class QemClient:
     def texture(self, mesh_id: str) -> tuple[str, bytes]:
         """The mesh's texture image as (media type, bytes); QemHTTPError (404,
         ``texture-not-found``) when the mesh was uploaded without one."""
-        response = self._request("GET", f"/v1/meshes/{mesh_id}/texture")
+        response = self._request("GET", _mesh_path(mesh_id, "/texture"))
         return response.headers["content-type"], response.content
 
     def splits(self, mesh_id: str, n1: int | None = None, n2: int | None = None) -> Iterator[bytes]:
@@ -274,20 +323,31 @@ class QemClient:
         params = {key: value for key, value in (("from", n1), ("to", n2)) if value is not None}
         try:
             with self._http.stream(
-                "GET", f"/v1/meshes/{mesh_id}/splits", params=params
+                "GET", _mesh_path(mesh_id, "/splits"), params=params
             ) as response:
-                if response.is_error:
+                if response.is_error or response.status_code in _REDIRECTS:
                     response.read()
                     _raise_for_problem(response)
                 yield from iter_frames(response.iter_bytes())
         except httpx.TransportError as exc:
-            raise QemConnectionError(self._describe(exc)) from exc
+            raise self._transport_error(exc) from exc
         except CorruptFileError as exc:
             raise QemClientError(f"the split stream of mesh {mesh_id} is damaged: {exc}") from exc
 
     def delete(self, mesh_id: str) -> None:
         """Remove a mesh and its data from the server."""
-        self._request("DELETE", f"/v1/meshes/{mesh_id}")
+        response = self._request("DELETE", _mesh_path(mesh_id))
+        if response.status_code != 204:
+            raise QemClientError(
+                f"{self.base_url} answered a delete with {response.status_code}, not qem-lod's "
+                "204; is it a qem-lod server?"
+            )
+
+
+def _mesh_path(mesh_id: str, rest: str = "") -> str:
+    """The path of a mesh's resource, its id escaped: an id is one path segment, so
+    "a/../b" or "a?x" cannot name another resource."""
+    return f"/v1/meshes/{quote(str(mesh_id), safe='')}{rest}"
 
 
 def _check_base_url(base_url: str) -> str:
@@ -305,7 +365,18 @@ def _check_base_url(base_url: str) -> str:
     return str(base_url).rstrip("/")
 
 
+# Redirects (304 Not Modified is an answer, not one).
+_REDIRECTS = (301, 302, 303, 307, 308)
+
+
 def _raise_for_problem(response: httpx.Response) -> None:
+    if response.status_code in _REDIRECTS:
+        # Not followed: a proxy's http -> https redirect would turn an upload into a GET.
+        location = response.headers.get("location", "?")
+        raise QemClientError(
+            f"the server redirected {response.request.url.path} ({response.status_code}) to "
+            f"{location}; give --server the URL it redirects to"
+        )
     if not response.is_error:
         return
     try:

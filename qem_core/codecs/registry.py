@@ -95,6 +95,10 @@ def load_mesh(source: MeshSource, format: str | None = None, name: str | None = 
     """
     data, source_name = _read_source(source)
     name = name if name is not None else source_name
+    if name is not None:
+        # A path from a file system that is not UTF-8 holds lone surrogates, which the
+        # .qpm's msgpack metadata (and any JSON) cannot store: they become U+FFFD.
+        name = str(name).encode("utf-8", "replace").decode("utf-8")
     label = name or "mesh data"
     fmt = _resolve_format(format, name, data)
     try:

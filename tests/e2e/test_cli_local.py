@@ -4,8 +4,11 @@ subprocess, files on disk, exit statuses and messages."""
 from __future__ import annotations
 
 import json
+import os
+import stat
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -103,6 +106,10 @@ def test_simplify_in_one_go(sphere_file):
         (["build", "sphere.ply", "-o", "x.qpm", "--option", "weighting=foo"], 2, "weighting"),
         (["build", "sphere.ply", "-o", "x.qpm", "--option", "colour=red"], 2, "unknown build"),
         (["build", "garbage.ply", "-o", "x.qpm"], 1, "garbage.ply"),
+        # Regression: uvicorn raised OverflowError past 65535; nan waited forever.
+        (["serve", "--port", "99999"], 2, "not a port"),
+        (["upload", "sphere.ply", "--timeout", "nan"], 2, "positive number of seconds"),
+        (["upload", "sphere.ply", "--timeout", "-1"], 2, "positive number of seconds"),
     ],
 )
 def test_bad_input_gives_a_message_and_a_status(built, args, status, words):
@@ -113,3 +120,49 @@ def test_bad_input_gives_a_message_and_a_status(built, args, status, words):
     assert words in result.stderr
     assert "Traceback" not in result.stderr
     assert not (built.parent / "x.qpm").exists() and not (built.parent / "x.ply").exists()
+
+
+def test_lod_writes_through_a_symlink(built):
+    """Regression: the level's file was renamed over the link, which then was a plain
+    file, and the file it named kept its old content."""
+    folder = built.parent
+    (folder / "real.ply").write_bytes(b"old")
+    link = folder / "link.ply"
+    link.unlink(missing_ok=True)
+    link.symlink_to("real.ply")
+    result = qem("lod", "sphere.qpm", "-n", "50", "-o", "link.ply", cwd=folder)
+    assert result.returncode == 0, result.stderr
+    assert link.is_symlink()
+    assert qem_core.load_mesh(folder / "real.ply").n_vertices == 50
+
+
+def test_lod_writes_into_a_fifo(built):
+    """Regression: a FIFO was replaced by a plain file, and its reader got nothing."""
+    fifo = built.parent / "levels.fifo"
+    fifo.unlink(missing_ok=True)
+    os.mkfifo(fifo)
+    received = []
+    reader = threading.Thread(target=lambda: received.append(fifo.read_bytes()))
+    reader.start()
+    result = qem("lod", "sphere.qpm", "-n", "50", "-o", str(fifo), "--format", "ply",
+                 cwd=built.parent)
+    reader.join(timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert stat.S_ISFIFO(fifo.stat().st_mode)
+    assert qem_core.load_mesh(received[0], format="ply").n_vertices == 50
+
+
+def test_a_closed_pipe_ends_the_command_quietly(built):
+    """Regression: ``qem lod ... -o - | head -c 1`` ended in a BrokenPipeError traceback."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "client.cli", "lod", "sphere.qpm", "-n", "600", "-o", "-",
+         "--format", "ply"],
+        cwd=built.parent,
+        env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin"},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    process.stdout.close()  # gone before the level is written
+    _, stderr = process.communicate(timeout=300)
+    assert process.returncode == 141, stderr
+    assert b"Traceback" not in stderr

@@ -208,7 +208,7 @@ class QemClient:
                         progress(sent, total)
 
         # A name from a file system that is not UTF-8 holds lone surrogates, which no
-        # query can carry: they go as U+FFFD.
+        # query can carry: they go as "?".
         name = (name or path.name).encode("utf-8", "replace").decode("utf-8")
         params: dict[str, Any] = {"name": name}
         for key, value in (options or {}).items():

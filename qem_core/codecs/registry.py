@@ -97,7 +97,7 @@ def load_mesh(source: MeshSource, format: str | None = None, name: str | None = 
     name = name if name is not None else source_name
     if name is not None:
         # A path from a file system that is not UTF-8 holds lone surrogates, which the
-        # .qpm's msgpack metadata (and any JSON) cannot store: they become U+FFFD.
+        # .qpm's msgpack metadata (and any JSON) cannot store: they become "?".
         name = str(name).encode("utf-8", "replace").decode("utf-8")
     label = name or "mesh data"
     fmt = _resolve_format(format, name, data)

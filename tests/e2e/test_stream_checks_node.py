@@ -235,3 +235,69 @@ def test_both_decoders_refuse_a_frame_past_the_work_limit(tmp_path):
     message = "split frame: the splits walk more than 2097152 corners of their split vertices"
     assert answer == {"error": f"WireFormatError: {message}", "held": pm.n_base}
     assert python is not None and python.startswith(message), python
+
+
+def test_both_decoders_refuse_a_base_mesh_with_fractional_counts(tmp_path, pm):
+    """Regression: the viewer read 44.5 vertices as a RangeError, and 84.3 faces as 84."""
+    n = pm.n_base + 5
+    served = msgpack.unpackb(
+        codecs.encode_mesh(*pm.lod(n), "msgpack", quantize_bits=16, grid_box=pm.position_bounds)
+    )
+    blobs = [
+        msgpack.packb({**served, "vertex_count": n + 0.5}),
+        msgpack.packb({**served, "face_count": served["face_count"] + 1 / 3}),
+    ]
+    assert _base_mesh_errors(tmp_path, blobs) == [
+        f"WireFormatError: base mesh: 'vertex_count' must be a non-negative integer, got {n + 0.5}",
+        "WireFormatError: base mesh: 'face_count' must be a non-negative integer, got "
+        f"{served['face_count'] + 1 / 3}",
+    ]
+    for blob in blobs:
+        with pytest.raises(qem_core.MeshFormatError, match="non-negative integer"):
+            SplitStreamDecoder.from_msgpack(blob)
+
+
+_CUTTER_DRIVER = """
+import { readFileSync } from "node:fs";
+import { pathToFileURL } from "node:url";
+const [refinePath, streamPath] = process.argv.slice(2);
+const { FrameCutter } = await import(pathToFileURL(refinePath).href);
+const cutter = new FrameCutter();
+const out = { payloads: [] };
+try {
+  for (const payload of cutter.push(readFileSync(streamPath))) out.payloads.push(payload.length);
+  cutter.finish();
+} catch (error) {
+  out.error = `${error.name}: ${error.message}`;
+}
+console.log(JSON.stringify(out));
+"""
+
+
+def test_frames_before_a_bad_length_are_cut_in_any_chunking(tmp_path, pm):
+    """Regression: in one chunk with a frame length past the limit, the good frames
+    before it were lost with the error (one frame a chunk, they were refined): the
+    viewer's level depended on how the bytes arrived. iter_frames yields them first too."""
+    node = shutil.which("node")
+    if node is None:
+        pytest.fail("node is missing: it is needed for the viewer's packages (npm ci)")
+    require_web_packages()
+    good = list(iter_frames(encode_split_frames(pm, pm.n_base, pm.n_base + 20,
+                                                splits_per_frame=10)))[:2]
+    stream = b"".join(_frame(payload) for payload in good) + struct.pack("<I", 1 << 30)
+    (tmp_path / "splits.bin").write_bytes(stream)
+    driver = tmp_path / "cutter.mjs"
+    driver.write_text(_CUTTER_DRIVER)
+    done = subprocess.run(
+        [node, str(driver), str(WEB / "js" / "refine.js"), str(tmp_path / "splits.bin")],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    answer = json.loads(done.stdout)
+    assert answer["payloads"] == [len(payload) for payload in good]
+    assert answer["error"].startswith("WireFormatError: split frame declares 1073741824 bytes")
+    python = []
+    with pytest.raises(qem_core.CorruptFileError):
+        for payload in iter_frames([stream]):
+            python.append(payload)
+    assert python == good

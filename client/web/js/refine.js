@@ -155,6 +155,12 @@ export function decodeBaseMesh(bytes) {
   }
   const nVertices = message.vertex_count;
   const nFaces = message.face_count;
+  // A fraction got past the length checks below (the arrays' sizes are rounded down).
+  for (const [name, count] of [["vertex_count", nVertices], ["face_count", nFaces]]) {
+    if (!Number.isInteger(count) || count < 0) {
+      fail(`base mesh: '${name}' must be a non-negative integer, got ${count}`);
+    }
+  }
   const IndexType = INDEX_TYPES[message.index_type];
   if (!IndexType) fail(`base mesh: unknown index_type '${message.index_type}'`);
   const bbox = message.bbox;

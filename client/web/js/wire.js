@@ -41,10 +41,14 @@ export class FrameCutter {
     this.buffer = new Uint8Array(1 << 16);
     this.start = 0;
     this.end = 0;
+    this.failure = null; // a bad length met after good frames: raised on the next call
   }
 
-  /** Append a chunk; returns the payloads it completed (copies, in stream order). */
+  /** Append a chunk; returns the payloads it completed (copies, in stream order). A bad
+   * frame length is raised after the frames before it are returned (by the next push or
+   * finish), so that how the bytes were chunked does not change what is refined. */
   push(chunk) {
+    if (this.failure) fail(this.failure);
     this.reserve(chunk.length);
     this.buffer.set(chunk, this.end);
     this.end += chunk.length;
@@ -53,7 +57,11 @@ export class FrameCutter {
       const b = this.buffer;
       const s = this.start;
       const length = (b[s] | (b[s + 1] << 8) | (b[s + 2] << 16) | (b[s + 3] << 24)) >>> 0;
-      if (length > FRAME_LIMIT) fail(`split frame declares ${length} bytes, over the limit`);
+      if (length > FRAME_LIMIT) {
+        this.failure = `split frame declares ${length} bytes, over the limit`;
+        if (payloads.length === 0) fail(this.failure);
+        break;
+      }
       if (this.end - s < 4 + length) break;
       payloads.push(b.slice(s + 4, s + 4 + length));
       this.start = s + 4 + length;
@@ -63,6 +71,7 @@ export class FrameCutter {
 
   /** Raise if the stream ended inside a frame. */
   finish() {
+    if (this.failure) fail(this.failure);
     if (this.end > this.start) {
       fail(`split stream ends inside a frame (${this.end - this.start} bytes left)`);
     }

@@ -54,6 +54,7 @@ from ._kernels.stream_coding import (
     SHORT_DATA,
     SPLIT_CONTEXT,
     TOO_MUCH_WORK,
+    WEDGE_WORK_LIMIT,
     code_splits,
     decode_connectivity,
     encode_connectivity,
@@ -64,6 +65,7 @@ from ._kernels.wedge_coding import (
     BAD_VALUE,
     BAD_WEDGE,
     BAD_WEDGE_CORNER,
+    TOO_MUCH_WEDGE_WORK,
     code_wedge_fields,
     decode_wedge_fields,
     wedge_context_slots,
@@ -438,6 +440,7 @@ def _split_frames(
         taken = plan_frame(
             corner_counts, start, splits.split_vertex, splits.new_faces,
             splits.new_face_counts, splits.relabel_offsets, FRAME_WORK_LIMIT,
+            -1 if wedges is None else WEDGE_WORK_LIMIT,
         )  # fmt: skip
         if start + taken < stop:  # a frame the decoder would refuse as too much work
             stop = start + taken
@@ -758,4 +761,9 @@ _STATUS = {
     BAD_WEDGE: "a corner or update names a wedge that does not exist",
     BAD_WEDGE_CORNER: "a wedge relabel names a corner that does not exist",
     BAD_VALUE: "a wedge value leaves its grid",
+    TOO_MUCH_WEDGE_WORK: (
+        f"the wedges of its new faces read more than {2 * WEDGE_WORK_LIMIT} corners "
+        f"({8 * WEDGE_WORK_LIMIT} in its first split; no encoder makes such a frame, and it "
+        "could take the decoder minutes)"
+    ),
 }

@@ -76,6 +76,12 @@ TOO_MUCH_WORK = 13  # after the wedge statuses (wedge_coding.py: 10-12)
 # fits); a decoder refuses a frame that goes past it. Real meshes, ~10 corners a split,
 # reach a twentieth of it in the largest frames (8192 splits).
 FRAME_WORK_LIMIT = 1 << 21
+# The wedge side's work (wedge_coding.py): the corners it reads, for each corner of a new
+# face, of that corner's vertex (twice for a vertex other than s and t: its list of
+# wedges, and the prediction). The encoder keeps a frame of more than one split within
+# WEDGE_WORK_LIMIT; the decoders refuse one past twice that, or past eight times within
+# its first split (a margin over the planner's count; a hub cannot stall them).
+WEDGE_WORK_LIMIT = 1 << 22
 
 # Version 3 codes the fields with the adaptive range coder (range_coder.py), split by
 # split in the order the decoder needs them. The contexts of each field, as slots of one
@@ -661,26 +667,47 @@ def _step_row(walk_length):
 
 @_kernel
 def plan_frame(corner_counts, n_from, split_vertex, new_faces, new_face_counts,
-               relabel_offsets, limit):
+               relabel_offsets, limit, wedge_limit):
     """How many of these splits (n_from.., at least one) a frame holds within ``limit``
     (FRAME_WORK_LIMIT): the sum over its splits of the split vertex's corner count, as
-    ``decode_connectivity`` counts it. ``corner_counts`` (>= n_to,) int64 holds every
-    vertex's corner count in the level n_from and is advanced past the splits taken: a
-    split moves its relabelled corners from s to t and adds its new faces' corners."""
+    ``decode_connectivity`` counts it; and, with ``wedge_limit`` >= 0 (a stream with
+    wedges: WEDGE_WORK_LIMIT), within that many corners read by the wedge side, as
+    ``wedge_coding.code_wedges`` counts them. ``corner_counts`` (>= n_to,) int64 holds
+    every vertex's corner count in the level n_from and is advanced past the splits
+    taken: a split moves its relabelled corners from s to t and adds its new faces'
+    corners."""
     walked = 0
+    wedge_walked = 0
     face = 0
     for i in range(split_vertex.shape[0]):
         s = split_vertex[i]
+        t = n_from + i
         walked += corner_counts[s]
         if i > 0 and walked > limit:
             return i
         moved = relabel_offsets[i + 1] - relabel_offsets[i]
         corner_counts[s] -= moved
-        corner_counts[n_from + i] += moved
+        corner_counts[t] += moved
+        first = face
         for _ in range(new_face_counts[i]):
             for j in range(3):
                 corner_counts[new_faces[face, j]] += 1
             face += 1
+        if wedge_limit < 0:
+            continue
+        # The wedge side reads, for each new corner, its vertex's corners in the level
+        # after the split.
+        for f in range(first, face):
+            for j in range(3):
+                v = new_faces[f, j]
+                wedge_walked += corner_counts[v] * (1 if v == s or v == t else 2)
+        if i > 0 and wedge_walked > wedge_limit:
+            for f in range(first, face):  # not taken: back to the level before it
+                for j in range(3):
+                    corner_counts[new_faces[f, j]] -= 1
+            corner_counts[t] -= moved
+            corner_counts[s] += moved
+            return i
     return split_vertex.shape[0]
 
 

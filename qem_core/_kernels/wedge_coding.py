@@ -55,6 +55,7 @@ from .stream_coding import (
     LONG_DATA,
     NO_CORNER,
     SHORT_DATA,
+    WEDGE_WORK_LIMIT,
     _append_face,
     _bit_length,
     _distinct_sorted,
@@ -72,6 +73,7 @@ LISTED = 254
 BAD_WEDGE = 10
 BAD_WEDGE_CORNER = 11
 BAD_VALUE = 12
+TOO_MUCH_WEDGE_WORK = 14  # after stream_coding's TOO_MUCH_WORK
 
 # No residual larger than this keeps a value on a grid of at most 16 bits (the decoder
 # refuses one as it reads it, as wedges.js does: the viewer holds 32-bit values).
@@ -246,10 +248,13 @@ def code_wedges(
     status = 0
     face = n_faces
     new = 0
+    work = np.zeros(1, np.int64)  # corners read (stream_coding.WEDGE_WORK_LIMIT)
     for i in range(run.split_vertex.shape[0]):
         s = run.split_vertex[i]
         t = n_from + i
-        cs, nc = _sorted_corners(level.head, level.nxt, s, 3 * face, cs)
+        # The encoder's frames stay within the limit; a decoder refuses past a margin.
+        work_cap = (2 if i > 0 else 8) * WEDGE_WORK_LIMIT if decoding else -1
+        cs, nc, _ = _sorted_corners(level.head, level.nxt, s, 3 * face, cs)
         old = _grow(old, nc)
         ws = _grow(ws, nc)
         for q in range(nc):
@@ -296,7 +301,7 @@ def code_wedges(
         map_to = _grow(map_to, nws)
         status = _code_corners(
             decoding, level, s, t, cs, nc, old, ws, nws, listed, n_new, n_wedges,
-            first_face, face, targets, map_to, symbols, backs, at,
+            first_face, face, targets, map_to, symbols, backs, at, work, work_cap,
         )  # fmt: skip
         if status:
             break
@@ -383,10 +388,13 @@ def _code_corners(
     symbols,
     backs,
     at,
+    work,
+    work_cap,
 ):
     """The symbols of split i's old corners of s and its new faces' corners (module
     docstring); sets their wedges and map_to (the wedge each old wedge's moved corners
-    took, -1 if none). Returns a status."""
+    took, -1 if none). Adds the corners it reads to work[0], and stops with
+    TOO_MUCH_WEDGE_WORK past ``work_cap`` (-1: no cap). Returns a status."""
     faces = level.faces
     after = n_wedges + n_new
     n_listed = nws + n_new
@@ -405,7 +413,10 @@ def _code_corners(
         choices = listed
         n_choices = n_listed
         if v != s and v != t:
-            mine, n_mine = _sorted_corners(level.head, level.nxt, v, c, mine)
+            mine, n_mine, read = _sorted_corners(level.head, level.nxt, v, c, mine)
+            work[0] += read
+            if 0 <= work_cap < work[0]:
+                return TOO_MUCH_WEDGE_WORK
             theirs = _grow(theirs, n_mine)
             for q in range(n_mine):
                 theirs[q] = level.corner_wedge[mine[q]]
@@ -423,7 +434,10 @@ def _code_corners(
             else:
                 predicted = old[z]
         else:
-            predicted = _predict_new_corner(level, c, s, t, cs, nc, old, mine)
+            predicted, read = _predict_new_corner(level, c, s, t, cs, nc, old, mine)
+            work[0] += read
+            if 0 <= work_cap < work[0]:
+                return TOO_MUCH_WEDGE_WORK
             if predicted < 0 and (v == s or v == t) and n_listed > 0:
                 predicted = n_wedges + fresh if fresh < n_new else listed[0]
         if decoding:
@@ -571,8 +585,9 @@ def _in_grid(values, wedge, q_max):
 
 @numba.njit(cache=True)
 def _predict_new_corner(level, c, s, t, cs, nc, old, mine):
-    """The predicted wedge of corner c of a new face (module docstring); -1 when its
-    vertex has no earlier corner to copy. ``mine`` is scratch."""
+    """(The predicted wedge of corner c of a new face (module docstring), -1 when its
+    vertex has no earlier corner to copy; the corners read of that vertex). ``mine`` is
+    scratch."""
     faces = level.faces
     f = c // 3
     j = c % 3
@@ -599,7 +614,7 @@ def _predict_new_corner(level, c, s, t, cs, nc, old, mine):
             if score > best:
                 best = score
                 predicted = old[q]
-    mine, n_mine = _sorted_corners(level.head, level.nxt, v, c, mine)
+    mine, n_mine, read = _sorted_corners(level.head, level.nxt, v, c, mine)
     for q in range(n_mine):
         corner = mine[q]
         if first < 0:
@@ -608,13 +623,13 @@ def _predict_new_corner(level, c, s, t, cs, nc, old, mine):
         if score > best:
             best = score
             predicted = level.corner_wedge[corner]
-    return predicted if predicted >= 0 else first
+    return (predicted if predicted >= 0 else first), read
 
 
 @numba.njit(cache=True)
 def _sorted_corners(head, nxt, v, below, out):
     """v's corners numbered below ``below``, ascending, into out (grown if need be);
-    returns (out, count)."""
+    returns (out, their count, the count of all v's corners: those read)."""
     count = 0
     c = head[v]
     while c != -1:
@@ -629,7 +644,7 @@ def _sorted_corners(head, nxt, v, below, out):
             n += 1
         c = nxt[c]
     out[:n].sort()
-    return out, n
+    return out, n, count
 
 
 @numba.njit(cache=True)

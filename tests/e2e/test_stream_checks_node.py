@@ -29,7 +29,9 @@ from qem_core.stream import (
     quantised_wedges,
 )
 from tests.tiny_meshes import icosphere, perforated_icosphere
+from tests.unit.conftest import SPOT
 from tests.unit.test_stream import _disc, off_grid_frame, one_vertex_frame
+from tests.unit.test_stream_wedges import hub_wedge_frame
 from tests.wedge_meshes import seamed_mesh, with_wedge_arrays
 
 from .test_viewer import WEB, pm_digest, require_web_packages, run_refine_js
@@ -301,3 +303,21 @@ def test_frames_before_a_bad_length_are_cut_in_any_chunking(tmp_path, pm):
         for payload in iter_frames([stream]):
             python.append(payload)
     assert python == good
+
+
+@pytest.fixture(scope="module")
+def spot_pm():
+    """Spot (the repository's demo copy) with its UVs: levels enough for a long frame."""
+    return qem_core.build_mesh(qem_core.load_mesh(SPOT))
+
+
+def test_both_decoders_refuse_a_frame_past_the_wedge_work_limit(tmp_path, spot_pm):
+    """A frame whose new faces all hold one vertex, whose corners the wedge side reads
+    for each of them (tests/unit/test_stream_wedges.py): refused by both decoders once
+    they pass twice WEDGE_WORK_LIMIT (this one would read 31 million corners)."""
+    payload = hub_wedge_frame(spot_pm, 350, 16)  # within the viewer's full face count
+    answer, python = _refusals(tmp_path, spot_pm, payload)
+    message = "split frame: the wedges of its new faces read more than 8388608 corners"
+    assert answer["error"].startswith(f"WireFormatError: {message}"), answer
+    assert answer["held"] == spot_pm.n_base
+    assert python is not None and python.startswith(message), python

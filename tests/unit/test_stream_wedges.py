@@ -385,3 +385,92 @@ def test_every_frame_needs_the_wedge_grid_held(spot_pm):
     decoder.feed(frames[1])
     _check_decoded(spot_pm, decoder, n2)
     assert decoder.wedge_grid is held
+
+
+# -- the work of a frame's wedge side ----------------------------------------------------
+
+
+def hub_wedge_frame(pm, k: int, per: int) -> bytes:
+    """A frame payload on lod(n_base) of ``pm`` (a mesh with wedges) whose k splits each
+    split the previous split's new vertex and add ``per`` faces (s, t, 1): all hold
+    vertex 1, whose corners the wedge side reads for each new corner there, so its work
+    grows with the square of the frame's faces while the connectivity's (the corners of
+    the split vertices) stays small. Every wedge symbol 0 (predicted), no new wedge."""
+    from qem_core import stream
+    from qem_core.progressive import VertexSplits
+    from qem_core.wedge_stream import WedgeArrays
+
+    n = pm.n_base
+    vertices, faces = pm.lod(n)
+    m = faces.shape[0]
+    split_vertex = np.array([0] + [n + i - 1 for i in range(1, k)], np.int32)
+    new_faces = np.array([[split_vertex[i], n + i, 1] for i in range(k) for _ in range(per)],
+                         np.int32)  # fmt: skip
+    splits = VertexSplits(
+        n, n + k, m, split_vertex, np.tile(vertices[0], (k, 2, 1)), new_faces,
+        np.full(k, per, np.int32), np.zeros(k + 1, np.int64), np.zeros(0, np.int32),
+    )  # fmt: skip
+    grid = grid_for(pm)
+    held = np.zeros((n + k, 3), np.int64)
+    held[:n] = grid.quantise(vertices)
+    state = stream._state(faces, n + k, m + k * per)
+    payload = stream._encode_frame(splits, state, held, grid, None, None)[0][4:]
+    body = msgpack.unpackb(payload[:-4])
+    wedges = quantised_wedges(pm, n)
+    corner_wedges = wedges.face_wedges.reshape(-1)
+    of_s = (faces == 0).reshape(-1)
+    n_symbols = int(of_s.sum()) + 3 * per + (k - 1) * 4 * per
+    n_rows = len(set(corner_wedges[of_s].tolist())) + k - 1
+    width = wedges.values.shape[1]
+    fields = WedgeArrays(np.zeros((3, k), np.int64), np.zeros(n_symbols, np.uint8),
+                         np.zeros(0, np.int64), np.zeros((n_rows, width), np.int64))
+    body.update({
+        "wedge_grid": wedges.grid.to_dict(), "wedges_from": int(wedges.values.shape[0]),
+        "n_wedge_symbols": n_symbols, "n_wedge_backs": 0, "n_wedge_rows": n_rows,
+        "wedges": stream.range_code_wedges(fields),
+    })  # fmt: skip
+    data = msgpack.packb(body)
+    return data + struct.pack("<I", zlib.crc32(data))
+
+
+def test_a_frame_whose_wedges_read_one_vertex_over_and_over_is_refused(spot_pm):
+    """Regression: 2000 splits adding 16 faces each at vertex 1, a 9 kB frame, took the
+    decoder 16 s (and the viewer 19 s); its wedge side would read 10^9 corners."""
+    vertices, faces = spot_pm.lod(spot_pm.n_base)
+    decoder = SplitStreamDecoder(grid_for(spot_pm).quantise(vertices), faces,
+                                 quantised_wedges(spot_pm, spot_pm.n_base))
+    with pytest.raises(qem_core.CorruptFileError, match="wedges of its new faces read more"):
+        decoder.feed(hub_wedge_frame(spot_pm, 2000, 16))
+    assert decoder.n_vertices == spot_pm.n_base  # left as it was
+
+
+def _wedge_work(pm, n: int) -> int:
+    """The reference: the corners the wedge side reads for split n -> n + 1, counted in
+    lod(n + 1) (each new corner's vertex's corners, twice for one other than s and t)."""
+    split = pm.splits(n, n + 1)
+    s, t = int(split.split_vertex[0]), n
+    counts = np.bincount(pm.lod(n + 1)[1].reshape(-1), minlength=n + 1)
+    return sum(int(counts[v]) * (1 if v in (s, t) else 2) for v in split.new_faces.reshape(-1))
+
+
+def test_frames_stay_within_the_wedge_work_a_decoder_accepts(monkeypatch, spot_pm):
+    """With a small WEDGE_WORK_LIMIT the encoder ends frames before it, and the stream
+    still decodes exactly (the decoders accept twice the limit)."""
+    pm, n_to = spot_pm, spot_pm.n_base + 400
+    limit = 1000
+    monkeypatch.setattr(qem_core.stream, "WEDGE_WORK_LIMIT", limit)
+    frames = list(iter_frames(encode_split_frames(pm, pm.n_base, n_to)))
+    work = [_wedge_work(pm, n) for n in range(pm.n_base, n_to)]
+    assert sum(work) > 10 * limit
+    vertices, faces = pm.lod(pm.n_base)
+    decoder = SplitStreamDecoder(grid_for(pm).quantise(vertices), faces,
+                                 quantised_wedges(pm, pm.n_base))
+    for payload in frames:
+        body = msgpack.unpackb(payload[:-4])
+        frame_work = work[body["n_from"] - pm.n_base : body["n_to"] - pm.n_base]
+        assert sum(frame_work) <= limit or len(frame_work) == 1
+        if body["n_to"] < n_to:  # the next split would not have fitted
+            assert sum(frame_work) + work[body["n_to"] - pm.n_base] > limit
+        decoder.feed(payload)
+    assert len(frames) > 10
+    _check_decoded(pm, decoder, n_to)

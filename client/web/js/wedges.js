@@ -77,6 +77,10 @@ const ROW_CLASSES = 8;
 const COLUMN_CLASSES = 4;
 // As qem_core.stream: what the wedge fields of one frame may allocate.
 const FRAME_WEDGE_LIMIT = 2 ** 24;
+// As stream_coding.WEDGE_WORK_LIMIT: the corners the wedge side of a frame may read (of
+// the vertices of its new faces' corners); refused past twice it, or past eight times
+// within the frame's first split.
+const WEDGE_WORK_LIMIT = 2 ** 22;
 const WEDGE_ITEMS_PER_BYTE = 2048;
 
 /** A frame's wedge keys (null when it has none), counts bounded by the coded bytes; the
@@ -235,7 +239,7 @@ export class WedgeLevels {
     const need = (this.nWedges + added) * this.width;
     this.receivedValues = grow(this.receivedValues, need);
     this.values = grow(this.values, need);
-    this.frame = { ...fields, k, atSymbol: 0, atBack: 0, atRow: 0 };
+    this.frame = { ...fields, k, atSymbol: 0, atBack: 0, atRow: 0, work: 0 };
   }
 
   /** The wedge side of split i of the frame (split vertex s, new vertex t, nc old corners
@@ -252,6 +256,16 @@ export class WedgeLevels {
     const W = this.nWedges;
     const after = W + nNew;
     const sc = this.scratch;
+    const workCap = (i > 0 ? 2 : 8) * WEDGE_WORK_LIMIT;
+    const read = (count) => {
+      f.work += count;
+      if (f.work > workCap) {
+        fail(
+          `split frame: the wedges of its new faces read more than ${2 * WEDGE_WORK_LIMIT} ` +
+            `corners (${8 * WEDGE_WORK_LIMIT} in its first split)`,
+        );
+      }
+    };
     sc.old = grow(sc.old, nc);
     sc.ws = grow(sc.ws, nc);
     const { old, ws } = sc;
@@ -275,7 +289,8 @@ export class WedgeLevels {
       let list = listed;
       let nList = listed.length;
       if (v !== s && v !== t) {
-        const [mine, nMine] = sortedCorners(state, v, c, sc);
+        const [mine, nMine, count] = sortedCorners(state, v, c, sc);
+        read(count);
         sc.list = grow(sc.list, nMine);
         for (let q = 0; q < nMine; q++) sc.list[q] = cw[mine[q]];
         list = sc.list;
@@ -290,7 +305,7 @@ export class WedgeLevels {
         else if (stays[slot] && fresh < nNew) predicted = W + fresh;
         else predicted = old[z];
       } else {
-        predicted = predictNewCorner(state, cw, c, s, t, old, nc, sc);
+        predicted = predictNewCorner(state, cw, c, s, t, old, nc, sc, read);
         if (predicted < 0 && (v === s || v === t) && listed.length > 0) {
           predicted = fresh < nNew ? W + fresh : listed[0];
         }
@@ -480,7 +495,8 @@ function findSorted(values, n, x) {
   return lo < n && values[lo] === x ? lo : -1;
 }
 
-/** v's corners numbered below `below`, ascending: [array, count] (scratch sc.mine). */
+/** v's corners numbered below `below`, ascending: [array, their count, the count of all
+ * v's corners, those read] (scratch sc.mine). */
 function sortedCorners(state, v, below, sc) {
   let count = 0;
   for (let c = state.head[v]; c !== -1; c = state.next[c]) count++;
@@ -488,7 +504,7 @@ function sortedCorners(state, v, below, sc) {
   let n = 0;
   for (let c = state.head[v]; c !== -1; c = state.next[c]) if (c < below) sc.mine[n++] = c;
   sc.mine.subarray(0, n).sort();
-  return [sc.mine, n];
+  return [sc.mine, n, count];
 }
 
 /** 2 if the face at `f` (3 * face) holds a preferred vertex, 1 if it holds u or w. */
@@ -502,8 +518,9 @@ function faceScore(faces, f, u, w, preferredA, preferredB) {
   return score;
 }
 
-/** wedge_coding._predict_new_corner: the predicted wedge of corner c of a new face. */
-function predictNewCorner(state, cw, c, s, t, old, nc, sc) {
+/** wedge_coding._predict_new_corner: the predicted wedge of corner c of a new face;
+ * `read` is told how many corners it reads. */
+function predictNewCorner(state, cw, c, s, t, old, nc, sc, read) {
   const faces = state.faces;
   const f = c - (c % 3);
   const j = c % 3;
@@ -531,7 +548,8 @@ function predictNewCorner(state, cw, c, s, t, old, nc, sc) {
       }
     }
   }
-  const [mine, nMine] = sortedCorners(state, v, c, sc);
+  const [mine, nMine, count] = sortedCorners(state, v, c, sc);
+  read(count);
   for (let q = 0; q < nMine; q++) {
     const corner = mine[q];
     if (first < 0) first = cw[corner];

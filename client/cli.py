@@ -368,7 +368,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="qem",
         description="Progressive meshes: serve them, upload to a server, fetch any level.",
-        epilog="exit status: 0 ok, 1 refused or failed, 2 usage, 3 server unreachable, 4 timed out",
+        epilog="exit status: 0 ok, 1 refused or failed, 2 usage, 3 server unreachable, "
+        "4 timed out, 130 interrupted, 141 output pipe closed",
     )
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add in SUBCOMMANDS:

@@ -77,11 +77,16 @@ def write_atomically(output: str, content: bytes | Callable[[Path], None]) -> No
         sys.stdout.buffer.flush()
         return
     path = Path(output)
-    if path.is_symlink():
-        path = path.resolve()  # write the file the link names; the link stays
-    if path.exists() and not path.is_file():
-        _write_through(path, output, content)  # a FIFO or a device: a rename would replace it
-        return
+    try:
+        if path.exists() and not path.is_file():
+            # A FIFO or a device (through a link: /dev/stdout into a pipe): a rename would
+            # replace it; its reader gets the bytes.
+            _write_through(path, output, content)
+            return
+        if path.is_symlink():
+            path = path.resolve(strict=True)  # the file the link names; the link stays
+    except (OSError, RuntimeError) as exc:  # RuntimeError: a loop of links
+        raise CliError(f"cannot write {output}: {getattr(exc, 'strerror', None) or exc}") from None
     partial = path.with_name(path.name + ".part")
     try:
         if isinstance(content, bytes):

@@ -346,7 +346,10 @@ class QemClient:
 
 def _mesh_path(mesh_id: str, rest: str = "") -> str:
     """The path of a mesh's resource, its id escaped: an id is one path segment, so
-    "a/../b" or "a?x" cannot name another resource."""
+    "a/../b" or "a?x" cannot name another resource (nor can "", "." or "..", which a URL
+    resolves away)."""
+    if str(mesh_id) in ("", ".", ".."):
+        raise QemClientError(f"{mesh_id!r} is not a mesh id")
     return f"/v1/meshes/{quote(str(mesh_id), safe='')}{rest}"
 
 

@@ -350,16 +350,7 @@ def apply_splits(
     level the splits start from, CorruptFileError when the splits are not a consistent
     run of splits.
     """
-    splits = coerced_splits(splits)
-    check_splits(
-        splits.n_from,
-        splits.faces_from,
-        splits.split_vertex,
-        splits.new_faces,
-        splits.new_face_counts,
-        splits.relabel_offsets,
-        splits.relabel_faces,
-    )
+    splits = coerced_splits(splits)  # checked whole, indices included
     vertices, faces = check_level(vertices, faces, splits.n_from, splits.faces_from)
     out_vertices = np.zeros((splits.n_to, 3))
     out_vertices[: splits.n_from] = vertices

@@ -82,8 +82,9 @@ def check_splits(
 
 
 def coerced_splits(splits: VertexSplits) -> VertexSplits:
-    """``splits`` with the dtypes the refinement kernels take, and its counts and
-    positions checked against its number of splits (`check_splits` checks the indices).
+    """``splits`` checked whole (its counts and positions against its number of splits,
+    its indices by `check_splits`, both before any narrowing: an int64 index past int32
+    would wrap into range), with the dtypes the refinement kernels take.
     Raises CorruptFileError for split data that is not a run of splits."""
     k = np.shape(splits.split_vertex)[0] if np.ndim(splits.split_vertex) == 1 else -1
     integer_arrays = (splits.split_vertex, splits.new_faces, splits.new_face_counts,
@@ -106,13 +107,16 @@ def coerced_splits(splits: VertexSplits) -> VertexSplits:
             f"inconsistent vertex splits: {k} splits cannot refine {splits.n_from} vertices "
             f"to {splits.n_to}"
         )
+    wide = [np.asarray(array, np.int64) for array in integer_arrays]
+    check_splits(splits.n_from, splits.faces_from, *wide)
+    split_vertex, new_faces, new_face_counts, relabel_offsets, relabel_faces = wide
     return splits._replace(
-        split_vertex=np.asarray(splits.split_vertex, np.int32),
+        split_vertex=split_vertex.astype(np.int32),
         split_positions=positions.astype(np.float64, copy=False),
-        new_faces=np.asarray(splits.new_faces, np.int32),
-        new_face_counts=np.asarray(splits.new_face_counts, np.int32),
-        relabel_offsets=np.asarray(splits.relabel_offsets, np.int64),
-        relabel_faces=np.asarray(splits.relabel_faces, np.int32),
+        new_faces=new_faces.astype(np.int32),
+        new_face_counts=new_face_counts.astype(np.int32),
+        relabel_offsets=relabel_offsets,
+        relabel_faces=relabel_faces.astype(np.int32),
     )
 
 

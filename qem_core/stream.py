@@ -763,7 +763,7 @@ _STATUS = {
     BAD_VALUE: "a wedge value leaves its grid",
     TOO_MUCH_WEDGE_WORK: (
         f"the wedges of its new faces read more than {2 * WEDGE_WORK_LIMIT} corners "
-        f"({8 * WEDGE_WORK_LIMIT} in its first split; no encoder makes such a frame, and it "
-        "could take the decoder minutes)"
+        f"({8 * WEDGE_WORK_LIMIT} in its first split), more than a decoder takes: the "
+        "encoder ends frames before half that, and such a split could take minutes"
     ),
 }

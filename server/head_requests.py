@@ -4,7 +4,8 @@ The API's routes take GET only, so a HEAD on them fell through to the viewer's s
 mount at ``/`` and got its 404 ("nothing at ..."). Monitors and caches ask HEAD for the
 status, the length and the ETag of what a GET would give; this middleware runs the GET
 and sends its start (status and headers, Content-Length included) with an empty body.
-A streamed answer (the splits) is still produced, and dropped.
+A streamed answer (the splits) is dropped; the server stops producing it once the client,
+which expects no body, is done.
 """
 
 from __future__ import annotations

@@ -67,7 +67,7 @@ LONG_DATA = 6
 BAD_POSITION = 7
 NO_CORNER = 8
 BAD_COUNT = 9
-TOO_MUCH_WORK = 13  # after the wedge statuses (wedge_coding.py: 10-12)
+TOO_MUCH_WORK = 13  # after the wedge statuses (wedge_coding.py: 10-12, then its 14)
 
 # Splitting s walks and sorts the corners of s, so a frame costs the sum of its split
 # vertices' corner counts: a frame that splits one vertex over and over (a fan) costs the
@@ -79,8 +79,11 @@ FRAME_WORK_LIMIT = 1 << 21
 # The wedge side's work (wedge_coding.py): the corners it reads, for each corner of a new
 # face, of that corner's vertex (twice for a vertex other than s and t: its list of
 # wedges, and the prediction). The encoder keeps a frame of more than one split within
-# WEDGE_WORK_LIMIT; the decoders refuse one past twice that, or past eight times within
-# its first split (a margin over the planner's count; a hub cannot stall them).
+# WEDGE_WORK_LIMIT; the decoders refuse one past twice that (a margin over the planner's
+# count), or past eight times within its first split, which no planner can shorten: a
+# split of more than ~3 000 new faces (only builds without topology preservation of
+# non-manifold input make one) cannot be streamed with its wedges, and a crafted split
+# of one vertex's faces cannot stall a decoder.
 WEDGE_WORK_LIMIT = 1 << 22
 
 # Version 3 codes the fields with the adaptive range coder (range_coder.py), split by

@@ -166,3 +166,28 @@ def test_a_closed_pipe_ends_the_command_quietly(built):
     _, stderr = process.communicate(timeout=300)
     assert process.returncode == 141, stderr
     assert b"Traceback" not in stderr
+
+
+def test_lod_writes_to_dev_stdout_into_a_pipe(built):
+    """Regression: /dev/stdout, a link to the pipe, was resolved to a path that does not
+    exist ("No such file or directory")."""
+    result = subprocess.run(
+        [sys.executable, "-m", "client.cli", "lod", "sphere.qpm", "-n", "50", "-o",
+         "/dev/stdout", "--format", "ply"],
+        cwd=built.parent,
+        env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin"},
+        capture_output=True,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr
+    assert qem_core.load_mesh(result.stdout, format="ply").n_vertices == 50
+
+
+def test_a_loop_of_links_is_a_message(built):
+    folder = built.parent
+    for name, target in (("loop_a.ply", "loop_b.ply"), ("loop_b.ply", "loop_a.ply")):
+        (folder / name).unlink(missing_ok=True)
+        (folder / name).symlink_to(target)
+    result = qem("lod", "sphere.qpm", "-n", "50", "-o", "loop_a.ply", cwd=folder)
+    assert result.returncode != 0
+    assert "cannot write loop_a.ply" in result.stderr and "Traceback" not in result.stderr

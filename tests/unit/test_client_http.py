@@ -59,6 +59,13 @@ def test_a_delete_answered_otherwise_than_204_is_not_taken_as_done():
         client_answering(handler).delete("abc")
 
 
+@pytest.mark.parametrize("mesh_id", ["", ".", ".."])
+def test_an_id_a_url_would_resolve_away_is_refused(mesh_id):
+    """Regression: delete("..") sent DELETE /v1."""
+    with pytest.raises(QemClientError, match="not a mesh id"):
+        client_answering(lambda request: httpx.Response(204)).delete(mesh_id)
+
+
 @pytest.mark.parametrize("mesh_id", ["zzz/../abc", "abc?format=ply", "a b#c"])
 def test_an_id_is_one_path_segment(mesh_id):
     """Regression: ``qem rm "zzz/../<id>"`` deleted mesh <id>."""

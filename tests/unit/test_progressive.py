@@ -232,6 +232,11 @@ def test_apply_splits_leaves_its_inputs_alone_and_refuses_the_wrong_level(built)
         (lambda s: s._replace(n_to=-1), "must be counts"),
         (lambda s: s._replace(split_positions=s.split_positions[:1]), "positions have shape"),
         (lambda s: s._replace(split_vertex=s.split_vertex.astype(float)), "integer arrays"),
+        # Checked before the kernel's int32: these wrapped back into range.
+        (lambda s: s._replace(relabel_faces=s.relabel_faces.astype(np.int64) + 2**32),
+         "relabels a face that does not exist"),
+        (lambda s: s._replace(split_vertex=s.split_vertex.astype(np.int64) - 2**32),
+         "does not exist yet"),
     ],
 )
 def test_apply_splits_refuses_splits_that_are_not_a_run(built, change, match):

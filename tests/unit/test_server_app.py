@@ -439,6 +439,13 @@ def test_cors_allows_get_from_any_origin(client, sphere):
         headers={"Origin": "https://example.org", "Access-Control-Request-Method": "POST"},
     )
     assert "POST" not in preflight.headers.get("access-control-allow-methods", "")
+    # HEAD answers as GET (server/head_requests.py): a browser's preflight for it passes.
+    head = client.options(
+        f"/v1/meshes/{sphere['id']}/lod",
+        headers={"Origin": "https://example.org", "Access-Control-Request-Method": "HEAD",
+                 "Access-Control-Request-Headers": "If-None-Match"},
+    )
+    assert head.status_code == 200, head.text
 
 
 def test_root_serves_the_viewer_folder(tmp_path):

@@ -454,8 +454,9 @@ def _wedge_work(pm, n: int) -> int:
 
 
 def test_frames_stay_within_the_wedge_work_a_decoder_accepts(monkeypatch, spot_pm):
-    """With a small WEDGE_WORK_LIMIT the encoder ends frames before it, and the stream
-    still decodes exactly (the decoders accept twice the limit)."""
+    """With a small WEDGE_WORK_LIMIT the encoder ends frames before it (the reference
+    counts each split's reads from its levels, independently of the planner), and the
+    stream still decodes exactly."""
     pm, n_to = spot_pm, spot_pm.n_base + 400
     limit = 1000
     monkeypatch.setattr(qem_core.stream, "WEDGE_WORK_LIMIT", limit)

@@ -122,6 +122,9 @@ def parse_option_pairs(pairs: list[str]) -> dict[str, str]:
         key, sep, value = pair.partition("=")
         if not sep or not key.strip():
             raise CliError(f"option {pair!r} is not NAME=VALUE", EXIT_USAGE)
+        if key.strip() in options:
+            # The server refuses a repeated parameter; keeping the last would be a guess.
+            raise CliError(f"option {key.strip()!r} is given twice", EXIT_USAGE)
         options[key.strip()] = value.strip()
     return options
 

@@ -83,7 +83,7 @@ def _too_large(max_bytes: int) -> Problem:
     return Problem(
         "upload-too-large",
         f"the file is larger than this server's limit of {max_bytes} bytes "
-        f"({max_bytes / 2**20:.0f} MiB); simplify it offline or raise QEM_MAX_UPLOAD_BYTES",
+        f"({max_bytes / 2**20:.3g} MiB); simplify it offline or raise QEM_MAX_UPLOAD_BYTES",
         max_bytes=max_bytes,
     )
 

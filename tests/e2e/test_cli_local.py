@@ -105,6 +105,8 @@ def test_simplify_in_one_go(sphere_file):
         (["info", "truncated.qpm"], 1, "damaged or truncated"),
         (["build", "sphere.ply", "-o", "x.qpm", "--option", "weighting=foo"], 2, "weighting"),
         (["build", "sphere.ply", "-o", "x.qpm", "--option", "colour=red"], 2, "unknown build"),
+        (["build", "sphere.ply", "-o", "x.qpm", "--option", "weighting=area", "--option",
+          "weighting=none"], 2, "given twice"),
         (["build", "garbage.ply", "-o", "x.qpm"], 1, "garbage.ply"),
         # Regression: uvicorn raised OverflowError past 65535; nan waited forever.
         (["serve", "--port", "99999"], 2, "not a port"),

@@ -214,7 +214,8 @@ def test_oversized_stream_without_length_is_cut_off(client):
             yield b"y" * 4096
 
     response = client.post("/v1/meshes", params={"name": "big.ply"}, content=body())
-    assert_problem(response, 413, "upload-too-large")
+    problem = assert_problem(response, 413, "upload-too-large")
+    assert "(0.0625 MiB)" in problem["detail"]  # not "(0 MiB)"
     assert leftover_files(client) == before
 
 

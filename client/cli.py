@@ -276,6 +276,7 @@ def cmd_get(args: argparse.Namespace) -> int:
         "id": args.id,
         "path": args.output,
         "format": fmt,
+        "asked": args.vertices,
         "vertices": lod.n_vertices,
         "faces": lod.n_faces,
         "bytes": len(lod.content),
@@ -284,8 +285,11 @@ def cmd_get(args: argparse.Namespace) -> int:
     if args.json and not to_stdout:
         print_json(summary)
     else:
+        # As `qem lod`: the server clamps the count into the mesh's levels.
+        asked = args.vertices
+        clamped = "" if asked is None or asked == lod.n_vertices else f" (asked {asked})"
         note(
-            f"wrote {args.output}: {lod.n_vertices} vertices, {lod.n_faces} faces "
+            f"wrote {args.output}: {lod.n_vertices} vertices{clamped}, {lod.n_faces} faces "
             f"({len(lod.content)} bytes, {fmt})"
         )
     return EXIT_OK

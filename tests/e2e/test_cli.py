@@ -96,7 +96,7 @@ def test_get_writes_exactly_n_vertices(server, workdir, uploaded, n, suffix):
 def test_get_reports_the_served_count_when_clamped(server, workdir, uploaded):
     result = qem("get", uploaded, "-n", "100000", "-o", "full.ply", cwd=workdir, server=server.url)
     assert result.returncode == 0, result.stderr
-    assert "642 vertices" in result.stderr
+    assert "642 vertices (asked 100000)" in result.stderr
     assert qem_core.load_mesh(workdir / "full.ply").n_vertices == 642
 
 

@@ -49,7 +49,6 @@ from .console import (
 )
 from .http import (
     DEFAULT_SERVER,
-    QemBuildFailed,
     QemClient,
     QemClientError,
     QemConnectionError,
@@ -381,6 +380,16 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# The exit status of each error a command may end with, the first class that matches
+# (QemTimeoutError before the QemConnectionError it is, and both before QemClientError).
+_EXIT_STATUS: tuple[tuple[type[Exception], int], ...] = (
+    (QemTimeoutError, EXIT_TIMEOUT),
+    (QemConnectionError, EXIT_UNREACHABLE),
+    (TimeoutError, EXIT_TIMEOUT),
+    (QemClientError, EXIT_FAILED),  # QemHTTPError, QemBuildFailed and the rest
+)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the ``qem`` command; returns the exit status."""
     args = build_parser().parse_args(argv)
@@ -389,24 +398,10 @@ def main(argv: list[str] | None = None) -> int:
     except CliError as exc:
         note(f"qem {args.command}: {exc}")
         return exc.status
-    except QemTimeoutError as exc:
-        note(f"qem {args.command}: {exc}")
-        return EXIT_TIMEOUT
-    except QemConnectionError as exc:
-        note(f"qem {args.command}: {exc}")
-        return EXIT_UNREACHABLE
-    except QemHTTPError as exc:
-        note(f"qem {args.command}: {_describe_problem(exc)}")
-        return EXIT_FAILED
-    except QemBuildFailed as exc:
-        note(f"qem {args.command}: {exc}")
-        return EXIT_FAILED
-    except TimeoutError as exc:
-        note(f"qem {args.command}: {exc}")
-        return EXIT_TIMEOUT
-    except QemClientError as exc:
-        note(f"qem {args.command}: {exc}")
-        return EXIT_FAILED
+    except (QemClientError, TimeoutError) as exc:
+        message = _describe_problem(exc) if isinstance(exc, QemHTTPError) else str(exc)
+        note(f"qem {args.command}: {message}")
+        return next(status for kind, status in _EXIT_STATUS if isinstance(exc, kind))
     except KeyboardInterrupt:
         note("interrupted")
         return EXIT_INTERRUPTED

@@ -107,16 +107,19 @@ def coerced_splits(splits: VertexSplits) -> VertexSplits:
             f"inconsistent vertex splits: {k} splits cannot refine {splits.n_from} vertices "
             f"to {splits.n_to}"
         )
-    wide = [np.asarray(array, np.int64) for array in integer_arrays]
+    # int32 arrays (what ProgressiveMesh.splits and the decoders give) are checked as they
+    # are; others as int64, so the narrowing after the check cannot wrap.
+    wide = [a if a.dtype == np.int32 else a.astype(np.int64)
+            for a in map(np.asarray, integer_arrays)]
     check_splits(splits.n_from, splits.faces_from, *wide)
     split_vertex, new_faces, new_face_counts, relabel_offsets, relabel_faces = wide
     return splits._replace(
-        split_vertex=split_vertex.astype(np.int32),
+        split_vertex=split_vertex.astype(np.int32, copy=False),
         split_positions=positions.astype(np.float64, copy=False),
-        new_faces=new_faces.astype(np.int32),
-        new_face_counts=new_face_counts.astype(np.int32),
-        relabel_offsets=relabel_offsets,
-        relabel_faces=relabel_faces.astype(np.int32),
+        new_faces=new_faces.astype(np.int32, copy=False),
+        new_face_counts=new_face_counts.astype(np.int32, copy=False),
+        relabel_offsets=relabel_offsets.astype(np.int64, copy=False),
+        relabel_faces=relabel_faces.astype(np.int32, copy=False),
     )
 
 

@@ -412,11 +412,9 @@ def _code_corners(
         v = faces[c // 3, c % 3]
         choices = listed
         n_choices = n_listed
+        read = 0  # corners of v read for this corner (each read is one chain: bounded)
         if v != s and v != t:
             mine, n_mine, read = _sorted_corners(level.head, level.nxt, v, c, mine)
-            work[0] += read
-            if 0 <= work_cap < work[0]:
-                return TOO_MUCH_WEDGE_WORK
             theirs = _grow(theirs, n_mine)
             for q in range(n_mine):
                 theirs[q] = level.corner_wedge[mine[q]]
@@ -434,12 +432,13 @@ def _code_corners(
             else:
                 predicted = old[z]
         else:
-            predicted, read = _predict_new_corner(level, c, s, t, cs, nc, old, mine)
-            work[0] += read
-            if 0 <= work_cap < work[0]:
-                return TOO_MUCH_WEDGE_WORK
+            predicted, predict_read = _predict_new_corner(level, c, s, t, cs, nc, old, mine)
+            read += predict_read
             if predicted < 0 and (v == s or v == t) and n_listed > 0:
                 predicted = n_wedges + fresh if fresh < n_new else listed[0]
+        work[0] += read
+        if 0 <= work_cap < work[0]:
+            return TOO_MUCH_WEDGE_WORK
         if decoding:
             symbol = symbols[at[AT_SYMBOL]]
             wedge = -1

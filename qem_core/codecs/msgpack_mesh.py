@@ -101,12 +101,7 @@ def write_msgpack(
         message["position_encoding"] = "f32"
         message["positions"] = vertices.astype("<f4").tobytes()
     else:
-        # `in range` alone would take 8.0 (8.0 == 8), which Grid's bit shift refuses.
-        if (
-            not isinstance(quantize_bits, int)
-            or isinstance(quantize_bits, bool)
-            or (quantize_bits not in range(1, 17))
-        ):
+        if not (_is_integer(quantize_bits) and quantize_bits in range(1, 17)):
             raise InvalidOptionsError(
                 f"quantize_bits={quantize_bits!r}: use None (float32) or 1..16 (16 is usual)"
             )
@@ -180,10 +175,7 @@ def read_msgpack(data: bytes) -> Mesh:
     if (
         not isinstance(bbox, list)
         or len(bbox) != 6
-        or not all(
-            isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
-            for x in bbox
-        )
+        or not all((_is_integer(x) or isinstance(x, float)) and math.isfinite(x) for x in bbox)
     ):
         raise MeshFormatError("'bbox' must be 6 finite numbers: min x y z, max x y z")
     encoding = message.get("position_encoding")
@@ -191,8 +183,7 @@ def read_msgpack(data: bytes) -> Mesh:
         vertices = _array(message, "positions", "<f4", n_vertices * 3).astype(np.float64)
     elif encoding == "u16":
         bits = message.get("position_bits")
-        # A float 8.0 passes `in range` and then breaks Grid's bit shift (TypeError).
-        if not isinstance(bits, int) or isinstance(bits, bool) or bits not in range(1, 17):
+        if not (_is_integer(bits) and bits in range(1, 17)):
             raise MeshFormatError(f"'position_bits' must be 1..16, got {bits!r}")
         quantised = _array(message, "positions", "<u2", n_vertices * 3).reshape(-1, 3)
         if quantised.size and int(quantised.max()) >= 1 << bits:
@@ -216,12 +207,8 @@ def read_msgpack(data: bytes) -> Mesh:
         if key not in _ATTRIBUTE_WIDTHS or not isinstance(entry, dict):
             raise MeshFormatError(f"unknown attribute {key!r}; known: {sorted(_ATTRIBUTE_WIDTHS)}")
         width = entry.get("components")
-        # A float 3.0 passes `in` and then breaks reshape (TypeError), as position_bits.
-        if (
-            not isinstance(width, int)
-            or isinstance(width, bool)
-            or width not in _ATTRIBUTE_WIDTHS[key]
-            or entry.get("type") != "f32"
+        if not (_is_integer(width) and width in _ATTRIBUTE_WIDTHS[key]) or (
+            entry.get("type") != "f32"
         ):
             raise MeshFormatError(
                 f"attribute {key!r} must be f32 with {_ATTRIBUTE_WIDTHS[key]} components"
@@ -280,9 +267,15 @@ def _index_dtype(entry: dict, key: str) -> np.dtype:
     return _INDEX_TYPES[name]
 
 
+def _is_integer(value: object) -> bool:
+    """An int that is not a bool. ``in range(...)`` alone would take 8.0 (8.0 == 8), which
+    then breaks a bit shift or a reshape (TypeError); msgpack's true would pass as 1."""
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
 def _count(message: dict, key: str) -> int:
     value = message.get(key)
-    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+    if not _is_integer(value) or value < 0:
         raise MeshFormatError(f"{key!r} must be a non-negative integer, got {value!r}")
     return value
 

@@ -644,23 +644,32 @@ def test_frames_stay_within_the_work_a_decoder_accepts(monkeypatch):
     assert len(frames) > 5
 
 
-def one_vertex_frame(vertices, faces, grid, k: int, per: int) -> bytes:
-    """A frame payload of k splits of vertex 0 on lod (vertices, faces), each adding
-    ``per`` faces (0, t, 1) to it, vertex 1 a neighbour of 0 (the encoder's planner
-    never makes such a frame: its work grows with the square of k)."""
+def crafted_frame(vertices, faces, grid, split_vertex: np.ndarray, per: int) -> bytes:
+    """The geometry payload of a frame no planner makes, on lod (vertices, faces): split
+    i splits ``split_vertex[i]`` and adds ``per`` faces (s, t, 1), all at vertex 1, with
+    nothing relabelled and every position that of vertex 0."""
     from qem_core import stream
     from qem_core.progressive import VertexSplits
 
-    n, m = vertices.shape[0], faces.shape[0]
-    new_faces = np.array([[0, n + i, 1] for i in range(k) for _ in range(per)], np.int32)
+    n, m, k = vertices.shape[0], faces.shape[0], split_vertex.shape[0]
+    new_faces = np.array([[split_vertex[i], n + i, 1] for i in range(k) for _ in range(per)],
+                         np.int32)  # fmt: skip
     splits = VertexSplits(
-        n, n + k, m, np.zeros(k, np.int32), np.tile(vertices[0], (k, 2, 1)), new_faces,
-        np.full(k, per, np.int32), np.zeros(k + 1, np.int64), np.zeros(0, np.int32),
+        n, n + k, m, split_vertex.astype(np.int32), np.tile(vertices[0], (k, 2, 1)),
+        new_faces, np.full(k, per, np.int32), np.zeros(k + 1, np.int64),
+        np.zeros(0, np.int32),
     )  # fmt: skip
     held = np.zeros((n + k, 3), np.int64)
     held[:n] = grid.quantise(vertices)
     state = stream._state(faces, n + k, m + k * per)
     return stream._encode_frame(splits, state, held, grid, None, None)[0][4:]
+
+
+def one_vertex_frame(vertices, faces, grid, k: int, per: int) -> bytes:
+    """A frame payload of k splits of vertex 0 on lod (vertices, faces), each adding
+    ``per`` faces (0, t, 1) to it, vertex 1 a neighbour of 0 (the encoder's planner
+    never makes such a frame: its work grows with the square of k)."""
+    return crafted_frame(vertices, faces, grid, np.zeros(k, np.int32), per)
 
 
 def test_a_frame_past_the_work_limit_is_refused():

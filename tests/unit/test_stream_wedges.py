@@ -397,24 +397,13 @@ def hub_wedge_frame(pm, k: int, per: int) -> bytes:
     grows with the square of the frame's faces while the connectivity's (the corners of
     the split vertices) stays small. Every wedge symbol 0 (predicted), no new wedge."""
     from qem_core import stream
-    from qem_core.progressive import VertexSplits
     from qem_core.wedge_stream import WedgeArrays
+    from tests.unit.test_stream import crafted_frame
 
     n = pm.n_base
     vertices, faces = pm.lod(n)
-    m = faces.shape[0]
     split_vertex = np.array([0] + [n + i - 1 for i in range(1, k)], np.int32)
-    new_faces = np.array([[split_vertex[i], n + i, 1] for i in range(k) for _ in range(per)],
-                         np.int32)  # fmt: skip
-    splits = VertexSplits(
-        n, n + k, m, split_vertex, np.tile(vertices[0], (k, 2, 1)), new_faces,
-        np.full(k, per, np.int32), np.zeros(k + 1, np.int64), np.zeros(0, np.int32),
-    )  # fmt: skip
-    grid = grid_for(pm)
-    held = np.zeros((n + k, 3), np.int64)
-    held[:n] = grid.quantise(vertices)
-    state = stream._state(faces, n + k, m + k * per)
-    payload = stream._encode_frame(splits, state, held, grid, None, None)[0][4:]
+    payload = crafted_frame(vertices, faces, grid_for(pm), split_vertex, per)
     body = msgpack.unpackb(payload[:-4])
     wedges = quantised_wedges(pm, n)
     corner_wedges = wedges.face_wedges.reshape(-1)

@@ -212,7 +212,9 @@ export class WedgeLevels {
     this.valueChanges = new Int32Array(2 * this.width * this.valueWedges.length);
     this.nCornerChanges = 0;
     this.nValueChanges = 0;
-    this.scratch = { old: new Int32Array(16), ws: new Int32Array(16), list: new Int32Array(32) };
+    this.scratch = {
+      old: new Int32Array(16), ws: new Int32Array(16), list: new Int32Array(32), reads: 0,
+    };
     this.frame = null;
     this.contexts = null; // the wedge fields' range coder contexts, as the last frame left them
     this.render = new RenderVertices(this, levels);
@@ -257,15 +259,7 @@ export class WedgeLevels {
     const after = W + nNew;
     const sc = this.scratch;
     const workCap = (i > 0 ? 2 : 8) * WEDGE_WORK_LIMIT;
-    const read = (count) => {
-      f.work += count;
-      if (f.work > workCap) {
-        fail(
-          `split frame: the wedges of its new faces read more than ${2 * WEDGE_WORK_LIMIT} ` +
-            `corners (${8 * WEDGE_WORK_LIMIT} in its first split)`,
-        );
-      }
-    };
+    sc.reads = 0;
     sc.old = grow(sc.old, nc);
     sc.ws = grow(sc.ws, nc);
     const { old, ws } = sc;
@@ -289,8 +283,7 @@ export class WedgeLevels {
       let list = listed;
       let nList = listed.length;
       if (v !== s && v !== t) {
-        const [mine, nMine, count] = sortedCorners(state, v, c, sc);
-        read(count);
+        const [mine, nMine] = sortedCorners(state, v, c, sc);
         sc.list = grow(sc.list, nMine);
         for (let q = 0; q < nMine; q++) sc.list[q] = cw[mine[q]];
         list = sc.list;
@@ -305,10 +298,18 @@ export class WedgeLevels {
         else if (stays[slot] && fresh < nNew) predicted = W + fresh;
         else predicted = old[z];
       } else {
-        predicted = predictNewCorner(state, cw, c, s, t, old, nc, sc, read);
+        predicted = predictNewCorner(state, cw, c, s, t, old, nc, sc);
         if (predicted < 0 && (v === s || v === t) && listed.length > 0) {
           predicted = fresh < nNew ? W + fresh : listed[0];
         }
+      }
+      f.work += sc.reads;
+      sc.reads = 0;
+      if (f.work > workCap) {
+        fail(
+          `split frame: the wedges of its new faces read more than ${2 * WEDGE_WORK_LIMIT} ` +
+            `corners (${8 * WEDGE_WORK_LIMIT} in its first split)`,
+        );
       }
       const symbol = f.symbols[f.atSymbol++];
       let wedge = -1;
@@ -495,8 +496,8 @@ function findSorted(values, n, x) {
   return lo < n && values[lo] === x ? lo : -1;
 }
 
-/** v's corners numbered below `below`, ascending: [array, their count, the count of all
- * v's corners, those read] (scratch sc.mine). */
+/** v's corners numbered below `below`, ascending: [array, count] (scratch sc.mine). Adds
+ * the corners it reads, all v's, to sc.reads (the frame's wedge work). */
 function sortedCorners(state, v, below, sc) {
   let count = 0;
   for (let c = state.head[v]; c !== -1; c = state.next[c]) count++;
@@ -504,7 +505,8 @@ function sortedCorners(state, v, below, sc) {
   let n = 0;
   for (let c = state.head[v]; c !== -1; c = state.next[c]) if (c < below) sc.mine[n++] = c;
   sc.mine.subarray(0, n).sort();
-  return [sc.mine, n, count];
+  sc.reads += count;
+  return [sc.mine, n];
 }
 
 /** 2 if the face at `f` (3 * face) holds a preferred vertex, 1 if it holds u or w. */
@@ -518,9 +520,8 @@ function faceScore(faces, f, u, w, preferredA, preferredB) {
   return score;
 }
 
-/** wedge_coding._predict_new_corner: the predicted wedge of corner c of a new face;
- * `read` is told how many corners it reads. */
-function predictNewCorner(state, cw, c, s, t, old, nc, sc, read) {
+/** wedge_coding._predict_new_corner: the predicted wedge of corner c of a new face. */
+function predictNewCorner(state, cw, c, s, t, old, nc, sc) {
   const faces = state.faces;
   const f = c - (c % 3);
   const j = c % 3;
@@ -548,8 +549,7 @@ function predictNewCorner(state, cw, c, s, t, old, nc, sc, read) {
       }
     }
   }
-  const [mine, nMine, count] = sortedCorners(state, v, c, sc);
-  read(count);
+  const [mine, nMine] = sortedCorners(state, v, c, sc);
   for (let q = 0; q < nMine; q++) {
     const corner = mine[q];
     if (first < 0) first = cw[corner];

@@ -4,6 +4,13 @@ import numpy as np
 import pytest
 
 import qem_core
+from qem_core import simplify
+from qem_core._kernels.adjacency import make_face_lists
+from qem_core._kernels.contract import RETRY_MAX_FACES, update_vertex_edges
+from qem_core._kernels.heap import cost_key, make_heap
+from qem_core._kernels.link import make_neighbourhood
+from qem_core._kernels.quadrics import QUADRIC_SIZE
+from qem_core.prepare import unique_edges
 from qem_core.simplify import contract_greedily
 from tests import reference
 from tests.tiny_meshes import (
@@ -204,3 +211,57 @@ def test_levels_with_colours_are_the_same_at_any_power_of_two_scale(exponent):
         assert np.array_equal(scaled_level.vertices, np.ldexp(level.vertices, exponent))
         assert np.array_equal(scaled_level.vertex_attributes["color"],
                               level.vertex_attributes["color"])
+
+
+def flat_fan(n_faces, closed):
+    """Vertex 0 at the centre of a flat fan of n_faces triangles around it (a full disk
+    when closed, else a half disk with vertex 0 on its border), rim vertices 1, 2, ..."""
+    angles = np.linspace(0.0, 2.0 * np.pi if closed else np.pi, n_faces + 1)
+    if closed:
+        angles = angles[:-1]
+    rim = np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], axis=1)
+    vertices = np.vstack([np.zeros((1, 3)), rim])
+    first = np.arange(n_faces) + 1
+    second = (np.arange(n_faces) + 1) % rim.shape[0] + 1
+    faces = np.stack([np.zeros(n_faces, np.int64), first, second], axis=1)
+    return vertices, faces
+
+
+@pytest.mark.parametrize("hub_faces", [RETRY_MAX_FACES, RETRY_MAX_FACES + 1])
+def test_a_refused_hub_is_retried_only_up_to_its_face_limit(hub_faces):
+    """When v is contracted into, its neighbours that had an edge refused are listed for
+    a retry, except a hub of more than RETRY_MAX_FACES faces, which stays marked (its
+    retries made a flat fan's build quadratic in the hub's degree, contract.py)."""
+    vertices, faces = flat_fan(hub_faces, closed=True)
+    n = vertices.shape[0]
+    options = qem_core.BuildOptions()
+    cx, _ = simplify._initial_complex(vertices, faces, options, unique_edges(faces, n), None,
+                                      owned=False)
+    assert np.count_nonzero(cx.faces == 0) == hub_faces
+    lists = make_face_lists(cx.faces, n, 6 * cx.faces.shape[0] + 1024, alive=cx.face_alive)
+    hood = make_neighbourhood(n)
+    heap = make_heap(int(cx.face_edge.max()) + 1)
+    cx.vertex_refused[[0, 2]] = 1  # the hub and a rim neighbour of vertex 1
+    look = simplify._look(cx, simplify._make_scratch(cx, options, None))
+    _, n_retry = update_vertex_edges(
+        cx.vertices, cx.vertex_quadrics, cx.vertex_refused, cx.edge_quadrics, cx.faces,
+        cx.face_alive, cx.face_edge, lists.start, lists.count, lists.pool, hood.near,
+        hood.generation, hood.retry, hood.part, heap.entries, heap.position, heap.size,
+        cost_key(np.inf), np.int64(1), np.bool_(False), False, simplify.RANK_TOLERANCE,
+        np.zeros(QUADRIC_SIZE), np.zeros(3), look)
+    retried = sorted(hood.retry[:n_retry].tolist())
+    hub_retried = hub_faces <= RETRY_MAX_FACES
+    assert retried == ([0, 2] if hub_retried else [2])
+    assert cx.vertex_refused[0] == (0 if hub_retried else 1)
+    assert cx.vertex_refused[2] == 0
+    assert heap.size[0] == 3  # vertex 1's edges to the hub and both rim neighbours
+
+
+@pytest.mark.parametrize("closed", [False, True])
+def test_a_flat_fan_around_a_hub_simplifies_to_its_base(closed):
+    vertices, faces = flat_fan(2 * RETRY_MAX_FACES, closed)
+    pm = qem_core.build(vertices, faces)
+    assert pm.n_base == 3
+    base_vertices, base_faces = pm.lod(pm.n_base)
+    assert np.allclose(base_vertices[:, 2], 0.0)
+    assert reference.boundary_loops(base_faces) == 1

@@ -56,6 +56,9 @@ class Settings(BaseSettings):
     lod_cache_bytes : memory budget of encoded levels kept for repeated requests.
     max_build_attempts : a build interrupted this many times (restart, worker crash) is
         marked failed instead of being requeued again.
+    max_build_seconds : a build still running after this long is stopped and its mesh
+        marked failed with the reason, so that no input (a pathological mesh, a huge one)
+        holds a worker indefinitely; dragon (871k faces) takes about 2 s here.
     progress_interval_s : a build writes its progress to the database at most this often.
     worker_keep_memory_bytes : opt-in: a build worker keeps memory its builds free for
         its next build instead of faulting it in again, at the price of holding about its
@@ -78,7 +81,8 @@ class Settings(BaseSettings):
     mesh_cache_size: int = Field(8, ge=1, le=1024)
     lod_cache_bytes: int = Field(256 * 2**20, ge=0, le=64 * 2**30)
     max_build_attempts: int = Field(3, ge=1, le=100)
-    progress_interval_s: float = Field(0.5, gt=0.0, le=60.0)
+    max_build_seconds: float = Field(600.0, gt=0.0, le=7 * 86400.0, allow_inf_nan=False)
+    progress_interval_s: float = Field(0.5, gt=0.0, le=60.0, allow_inf_nan=False)
     worker_keep_memory_bytes: int = Field(0, ge=0, le=2**31 - 1)
     metadata_backend: str = "sqlite"
     blob_backend: str = "local"

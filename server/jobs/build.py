@@ -16,7 +16,7 @@ from qem_core import codecs
 
 from ..storage import Storage, new_token, qpm_key
 
-__all__ = ["BuildAborted", "run_build"]
+__all__ = ["BuildAborted", "BuildTimedOut", "run_build"]
 
 log = logging.getLogger("qem.jobs")
 
@@ -29,9 +29,15 @@ class BuildAborted(Exception):
     """The attempt lost its claim (mesh deleted, build requeued) or its parent died."""
 
 
+class BuildTimedOut(Exception):
+    """The attempt ran past its time limit (settings.max_build_seconds)."""
+
+
 class _ProgressWriter:
     """progress(fraction) for qem_core, writing to the record at most every `interval`
-    seconds, and aborting the build when it should stop."""
+    seconds, and aborting the build when it should stop or its `deadline` (a
+    time.monotonic() value, or None) has passed. qem_core calls it between chunks of
+    contractions, and every 0.1 s while its parallel rounds run."""
 
     def __init__(
         self,
@@ -40,16 +46,20 @@ class _ProgressWriter:
         token: str,
         interval: float,
         should_abort: Callable[[], bool] | None,
+        deadline: float | None = None,
     ) -> None:
         self._storage = storage
         self._mesh_id = mesh_id
         self._token = token
         self._interval = interval
         self._should_abort = should_abort
+        self._deadline = deadline
         self._last = time.monotonic()
 
     def __call__(self, fraction: float, *, force: bool = False) -> None:
         now = time.monotonic()
+        if self._deadline is not None and now > self._deadline:
+            raise BuildTimedOut
         if not force and now - self._last < self._interval:
             return
         self._last = now
@@ -68,19 +78,23 @@ def run_build(
     *,
     progress_interval: float = 0.5,
     should_abort: Callable[[], bool] | None = None,
+    max_seconds: float | None = None,
 ) -> str:
     """Build the queued mesh `mesh_id` and record the outcome.
 
     Returns the status it left: ``ready``, ``failed``, or ``skipped`` when the record was
     not queued (already claimed, finished or deleted) or the attempt was aborted. Bad
     input never raises: it becomes ``failed`` with the reason in the record's ``error``.
+    A build still running ``max_seconds`` after its start (None: no limit) fails too.
     """
     token = new_token()
     record = storage.metadata.claim(mesh_id, token)
     if record is None:
         return "skipped"
-    progress = _ProgressWriter(storage, mesh_id, token, progress_interval, should_abort)
     started = time.monotonic()
+    deadline = None if max_seconds is None else started + max_seconds
+    progress = _ProgressWriter(storage, mesh_id, token, progress_interval, should_abort,
+                               deadline)
     try:
         with storage.blobs.local_path(record.upload_key) as path:
             mesh = codecs.load_mesh(path, name=record.name)
@@ -118,6 +132,12 @@ def run_build(
     except BuildAborted as exc:
         log.info("build of mesh %s stopped: %s", mesh_id, exc)
         return "skipped"
+    except BuildTimedOut:
+        reason = (
+            f"the build was stopped after {max_seconds:g} s, the time limit of a build on "
+            f"this server (QEM_MAX_BUILD_SECONDS); simplify the mesh in parts or ask the "
+            f"operator to raise the limit"
+        )
     except qem_core.QemError as exc:
         reason = str(exc) or type(exc).__name__
     except FileNotFoundError:

@@ -93,6 +93,7 @@ def _build_in_worker(mesh_id: str) -> str:
             _worker_storage,
             mesh_id,
             progress_interval=_worker_settings.progress_interval_s,
+            max_seconds=_worker_settings.max_build_seconds,
             should_abort=_parent_is_gone,
         )
     finally:

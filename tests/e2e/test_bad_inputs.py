@@ -15,6 +15,7 @@ import httpx
 import pytest
 
 from client.http import QemBuildFailed
+from tests.tiny_meshes import bumpy_grid
 
 PROBLEM = "application/problem+json"
 HEADER = "ply\nformat ascii 1.0\nelement vertex {v}\nproperty float x\nproperty float y\n"
@@ -234,3 +235,23 @@ def test_names_are_read_from_rfc_5987_and_cleaned(http):
     assert http.get(spoofing.json()["url"]).json()["name"] == "bunnygpj.ply"
     dots = http.post("/v1/meshes", params={"name": ".."}, content=ascii_ply())
     assert http.get(dots.json()["url"]).json()["name"] == "upload"
+
+
+def test_a_build_past_the_time_limit_fails_with_the_reason(start_server, tmp_path):
+    """QEM_MAX_BUILD_SECONDS stops a build that runs too long (a pathological or huge
+    mesh must not hold a worker indefinitely): the mesh fails with the reason, at once,
+    without being requeued, and its upload stays."""
+    server = start_server({"QEM_MAX_BUILD_SECONDS": "0.1"})
+    vertices, faces = bumpy_grid(300)  # 90 000 vertices: longer than 0.1 s to build
+    obj = "".join(f"v {x:.6f} {y:.6f} {z:.6f}\n" for x, y, z in vertices.tolist())
+    obj += "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in faces.tolist())
+    path = tmp_path / "big_grid.obj"
+    path.write_text(obj)
+    with server.client() as qem:
+        mesh_id = qem.upload(path)
+        with pytest.raises(QemBuildFailed) as failed:
+            qem.wait_ready(mesh_id, timeout=300)
+    info = failed.value.info
+    assert info["status"] == "failed" and info["attempts"] == 1, info
+    assert "0.1 s" in info["error"] and "QEM_MAX_BUILD_SECONDS" in info["error"], info
+    assert (server.data_dir / "blobs" / "uploads" / mesh_id).is_file()

@@ -52,6 +52,9 @@ def test_tokens_are_not_shown(tmp_path):
         ("jobs_backend", "redis", "is not one of ['local']"),
         ("demo_mesh", "/no/such/file.obj", "is not a file"),
         ("progress_interval_s", 0, "greater than 0"),
+        ("max_build_seconds", 0, "greater than 0"),
+        ("max_build_seconds", float("nan"), "finite number"),
+        ("progress_interval_s", float("nan"), "finite number"),
     ],
 )
 def test_unsafe_values_are_refused(tmp_path, field, value, message):

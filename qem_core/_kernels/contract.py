@@ -81,6 +81,10 @@ from .volume import with_volume
 # 50 000 triangles with its apex on the border took 129 s to build, now 0.9 s. Real meshes
 # have no such vertex: the levels of all the shared meshes are byte-identical.
 RETRY_MAX_FACES = 256
+# Only the first this many faces of a vertex have their rows prefetched: a hub's rows
+# would not stay in the cache anyway, and asking for them all made every pop of one of
+# its edges cost O(its faces) in prefetches alone (a cone of 100 000 rim vertices).
+PREFETCH_MAX_FACES = 64
 
 STATUS_EXHAUSTED = 0  # nothing valid left to contract
 STATUS_STEPS_DONE = 1  # max_steps contractions done, more may follow
@@ -175,7 +179,7 @@ def _prefetch_neighbourhood(vertices, vertex_quadrics, edge_quadrics, face_norma
     of its faces, heap positions (and in exact mode quadrics) of its edges. A quadric row
     is 80 bytes: two cache lines."""
     s = start[v]
-    for i in range(count[v]):
+    for i in range(min(count[v], PREFETCH_MAX_FACES)):
         f = pool[s + i]
         prefetch(face_normals, f, 0)
         for k in range(3):
@@ -201,9 +205,9 @@ def _prefetch_opposites(faces, start, count, pool, near, heap_entries, heap_posi
     asked for: 0 where x's face list is, and the heap row of edge b-x (merge_edges takes
     it out of the heap); 1 the list itself (rewrite_faces takes the face abx out of it).
     Call after `link.gather` (near[x, NEAR_EDGE_B] is edge b-x)."""
-    s = start[a]
-    for i in range(count[a]):
-        x = opposite(faces, pool[s + i], a, b)
+    s = start[b]
+    for i in range(count[b]):
+        x = opposite(faces, pool[s + i], b, a)
         if x < 0:
             continue
         if stage == 0:

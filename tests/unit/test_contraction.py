@@ -265,3 +265,30 @@ def test_a_flat_fan_around_a_hub_simplifies_to_its_base(closed):
     base_vertices, base_faces = pm.lod(pm.n_base)
     assert np.allclose(base_vertices[:, 2], 0.0)
     assert reference.boundary_loops(base_faces) == 1
+
+
+def double_cone(n_rim):
+    """Two hubs (vertex 0 above, vertex n_rim + 1 below) joined by a flat rim of n_rim
+    vertices: a closed sphere whose hubs have n_rim faces each, far past the prefetch and
+    retry limits of contract.py."""
+    angles = np.linspace(0.0, 2.0 * np.pi, n_rim, endpoint=False)
+    rim = np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], axis=1)
+    vertices = np.vstack([[[0.0, 0.0, 1.0]], rim, [[0.0, 0.0, -1.0]]])
+    first = np.arange(n_rim) + 1
+    second = np.arange(1, n_rim + 1) % n_rim + 1
+    top = np.stack([np.zeros(n_rim, np.int64), first, second], axis=1)
+    bottom = np.stack([np.full(n_rim, n_rim + 1), second, first], axis=1)
+    return vertices, np.vstack([top, bottom])
+
+
+def test_a_double_cone_keeps_its_sphere_down_to_a_tetrahedron():
+    """Every contraction next to a hub reads the hub's faces (flip guard, bare-vertex
+    check, prefetch), which take the hub's smaller partner or a capped prefix first: the
+    answers must stay those of the full scans."""
+    vertices, faces = double_cone(2 * RETRY_MAX_FACES)
+    assert reference.is_closed_manifold(faces)
+    pm = qem_core.build(vertices, faces)
+    assert pm.n_base == 4
+    for n, _, level_faces in every_level(pm):
+        assert reference.fast_is_closed_manifold(level_faces), n
+        assert reference.fast_euler_characteristic(level_faces) == 2, n

@@ -48,7 +48,6 @@ from ._kernels.contract import (
     Complex,
     Record,
     Scratch,
-    readmit_refused_hubs,
     run_contractions,
 )
 from ._kernels.heap import heapify, make_heap
@@ -383,7 +382,6 @@ def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
                    lists.pool, _look(cx, scratch), heap.entries)
         heap.size[0] = candidates.shape[0]
     heapify(heap.entries, heap.position, heap.size)
-    done_at_readmission = -1
     while done < budget:
         restart_generations(hood)
         status, steps = run_contractions(
@@ -391,14 +389,7 @@ def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
         )
         done += steps
         if status == STATUS_EXHAUSTED:
-            # Edges refused at a hub wait out some changes of its rim (contract.py); the
-            # last of them come back here, once after each contraction at most.
-            if done == done_at_readmission or not readmit_refused_hubs(
-                cx, lists, hood, heap, params, scratch
-            ):
-                break
-            done_at_readmission = done
-            continue
+            break
         if status in (STATUS_NEED_RELABEL_SPACE, STATUS_NEED_WEDGE_SPACE):
             record = with_room_for(record, status)
         elif status == STATUS_NEED_POOL_SPACE:

@@ -23,9 +23,8 @@ Candidates: every live edge is in the heap with its current cost, except edges r
 the link condition or the flip guard. Those stay out until the neighbourhood of one of
 their ends changes: a refused edge marks both ends, and when a neighbour of a marked
 vertex is contracted into, the vertex's missing edges go back in with fresh costs; a
-vertex of more than ``RETRY_MAX_FACES`` faces (a hub) is not retried so, and its refused
-edges come back when it is contracted into, at every ``HUB_RETRY_EVERY``-th contraction
-into their other ends, and when the heap runs empty (``readmit_refused_hubs``). With
+vertex of more than ``RETRY_MAX_FACES`` faces is not retried so, and its refused edges come
+back only when it or the edge's other end is contracted into. With
 pair contraction on, the pairs (pairs.py) are candidates too, numbered after the edges;
 they skip the link condition. No contraction may leave a vertex without a face. In a
 parallel round (rounds.py) each loop holds only the edges within its part of the
@@ -86,13 +85,6 @@ RETRY_MAX_FACES = 256
 # would not stay in the cache anyway, and asking for them all made every pop of one of
 # its edges cost O(its faces) in prefetches alone (a cone of 100 000 rim vertices).
 PREFETCH_MAX_FACES = 64
-# An edge refused at such a hub (a flip at the hub, mostly) came back after every change
-# of its other end, and the next change brought the next one: around a cone of 90 000
-# rim vertices with float32 coordinates, eleven pops of O(the hub's faces) each per
-# contraction (10 000 contractions in 130 s). It is now priced again only at every this
-# many changes of the hub's rim (vertex_refused counts them, a uint8), or when the hub
-# is contracted into, and when the heap runs empty (`readmit_refused_hubs`).
-HUB_RETRY_EVERY = 64
 
 STATUS_EXHAUSTED = 0  # nothing valid left to contract
 STATUS_STEPS_DONE = 1  # max_steps contractions done, more may follow
@@ -300,13 +292,6 @@ def _update_vertex_edges(vertices, vertex_quadrics, vertex_refused, edge_quadric
             if part[x] != part[v]:
                 continue
             edge = face_edge[f, corner if step == 1 else (corner + 2) % 3]
-            if heap_position[edge] == -1 and vertex_refused[x] and count[x] > RETRY_MAX_FACES:
-                # Refused at a hub (module docstring): priced again only at every
-                # HUB_RETRY_EVERY-th change of its other ends, or by `readmit_refused_hubs`.
-                if vertex_refused[x] < HUB_RETRY_EVERY:
-                    vertex_refused[x] += 1
-                    continue
-                vertex_refused[x] = 1
             if only_missing:
                 if heap_position[edge] != -1:
                     continue  # in the heap (its cost is current), or parked
@@ -479,19 +464,6 @@ def _update_after_contraction(vertices, vertex_quadrics, vertex_refused, edge_qu
 update_after_contraction = borrowing_kernel(_update_after_contraction)
 
 
-def _borrowed_look(cx, scratch):
-    """The appearance arrays the kernels take (``look``, appearance.py), borrowed."""
-    return (
-        borrow(cx.face_wedges), borrow(cx.wedge_quadrics), borrow(cx.wedge_values),
-        borrow(scratch.wedge_tag), borrow(scratch.wedge_slot), borrow(scratch.members),
-        borrow(scratch.group_rows), borrow(scratch.counter), borrow(scratch.settings),
-        borrow(scratch.value_bounds), borrow(scratch.total), borrow(scratch.group_values),
-    )
-
-
-borrowed_look = numba.njit(cache=True, inline="always")(_borrowed_look)
-
-
 def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, scratch):
     """Contract greedily until max_steps are done or nothing valid is left.
 
@@ -531,7 +503,12 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, s
     wedge_log_end = borrow(record.wedge_log_end)
     wedge_relabel = borrow(record.wedge_relabel)
     wedge_relabel_end = borrow(record.wedge_relabel_end)
-    look = borrowed_look(cx, scratch)
+    look = (
+        borrow(cx.face_wedges), borrow(cx.wedge_quadrics), borrow(cx.wedge_values),
+        borrow(scratch.wedge_tag), borrow(scratch.wedge_slot), borrow(scratch.members),
+        borrow(scratch.group_rows), borrow(scratch.counter), borrow(scratch.settings),
+        borrow(scratch.value_bounds), borrow(scratch.total), borrow(scratch.group_values),
+    )
     has_wedges = cx.wedge_quadrics.shape[0] > 0
     has_uvs = has_wedges and scratch.settings[SETTING_UV_OFFSET] >= 0.0
     quadric = np.zeros(QUADRIC_SIZE)
@@ -688,31 +665,3 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, s
 
 # nogil: the loops of a parallel round run in threads of their own (rounds.py).
 run_contractions = numba.njit(cache=True, nogil=True)(_run_contractions)
-
-
-def _readmit_refused_hubs(cx, lists, hood, heap, params, scratch):
-    """Price again every edge of a refused hub that is out of the heap (those left out
-    by HUB_RETRY_EVERY). Call when the heap has run empty. Returns how many edges it put
-    in: none, and the loop is truly done; the caller calls it again only after another
-    contraction, since without one the same edges would be refused again."""
-    vertex_refused, count = borrow(cx.vertex_refused), borrow(lists.count)
-    heap_size = borrow(heap.size)
-    look = borrowed_look(cx, scratch)
-    quadric, position = np.zeros(QUADRIC_SIZE), np.zeros(3)
-    before = heap_size[0]
-    for v in range(count.shape[0]):
-        if vertex_refused[v] and count[v] > RETRY_MAX_FACES:
-            vertex_refused[v] = 1
-            update_vertex_edges(borrow(cx.vertices), borrow(cx.vertex_quadrics), vertex_refused,
-                                borrow(cx.edge_quadrics), borrow(cx.faces),
-                                borrow(cx.face_alive), borrow(cx.face_edge),
-                                borrow(lists.start), count, borrow(lists.pool),
-                                borrow(hood.near), borrow(hood.generation), borrow(hood.retry),
-                                borrow(hood.part), borrow(heap.entries), borrow(heap.position),
-                                heap_size, cost_key(params[PARAM_STOP_COST]), np.int64(v),
-                                np.bool_(True), params[PARAM_EXACT] != 0.0,
-                                params[PARAM_RANK_TOLERANCE], quadric, position, look)
-    return heap_size[0] - before
-
-
-readmit_refused_hubs = numba.njit(cache=True)(_readmit_refused_hubs)

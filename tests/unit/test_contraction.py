@@ -6,12 +6,7 @@ import pytest
 import qem_core
 from qem_core import simplify
 from qem_core._kernels.adjacency import make_face_lists
-from qem_core._kernels.contract import (
-    HUB_RETRY_EVERY,
-    RETRY_MAX_FACES,
-    readmit_refused_hubs,
-    update_vertex_edges,
-)
+from qem_core._kernels.contract import RETRY_MAX_FACES, update_vertex_edges
 from qem_core._kernels.heap import cost_key, make_heap
 from qem_core._kernels.link import make_neighbourhood
 from qem_core._kernels.quadrics import QUADRIC_SIZE
@@ -232,81 +227,34 @@ def flat_fan(n_faces, closed):
     return vertices, faces
 
 
-class FanLoop:
-    """The serial loop's state for `flat_fan(hub_faces, closed=True)` with an empty heap:
-    ``contracted_into(v)`` re-prices v's edges as after a contraction into v."""
-
-    def __init__(self, hub_faces):
-        vertices, faces = flat_fan(hub_faces, closed=True)
-        n = vertices.shape[0]
-        options = qem_core.BuildOptions()
-        self.cx, _ = simplify._initial_complex(vertices, faces, options,
-                                               unique_edges(faces, n), None, owned=False)
-        assert np.count_nonzero(self.cx.faces == 0) == hub_faces
-        self.lists = make_face_lists(self.cx.faces, n, 6 * self.cx.faces.shape[0] + 1024,
-                                     alive=self.cx.face_alive)
-        self.hood = make_neighbourhood(n)
-        self.heap = make_heap(int(self.cx.face_edge.max()) + 1)
-        self.scratch = simplify._make_scratch(self.cx, options, None)
-        self.params = simplify._kernel_params(options)
-
-    def contracted_into(self, v):
-        cx, lists, hood, heap = self.cx, self.lists, self.hood, self.heap
-        _, n_retry = update_vertex_edges(
-            cx.vertices, cx.vertex_quadrics, cx.vertex_refused, cx.edge_quadrics, cx.faces,
-            cx.face_alive, cx.face_edge, lists.start, lists.count, lists.pool, hood.near,
-            hood.generation, hood.retry, hood.part, heap.entries, heap.position, heap.size,
-            cost_key(np.inf), np.int64(v), np.bool_(False), False, simplify.RANK_TOLERANCE,
-            np.zeros(QUADRIC_SIZE), np.zeros(3), simplify._look(cx, self.scratch))
-        return sorted(hood.retry[:n_retry].tolist())
-
-    def in_heap(self, a, b):
-        packed = self.heap.entries[:self.heap.size[0], 1]
-        ends = {(int(e) >> 32, int(e) & 0xFFFFFFFF) for e in packed}
-        return (a, b) in ends or (b, a) in ends
-
-
 @pytest.mark.parametrize("hub_faces", [RETRY_MAX_FACES, RETRY_MAX_FACES + 1])
 def test_a_refused_hub_is_retried_only_up_to_its_face_limit(hub_faces):
     """When v is contracted into, its neighbours that had an edge refused are listed for
     a retry, except a hub of more than RETRY_MAX_FACES faces, which stays marked (its
-    retries made a flat fan's build quadratic in the hub's degree, contract.py); v's edge
-    to such a hub, out of the heap, waits for more changes (HUB_RETRY_EVERY)."""
-    loop = FanLoop(hub_faces)
-    loop.cx.vertex_refused[[0, 2]] = 1  # the hub and a rim neighbour of vertex 1
-    retried = loop.contracted_into(1)
+    retries made a flat fan's build quadratic in the hub's degree, contract.py)."""
+    vertices, faces = flat_fan(hub_faces, closed=True)
+    n = vertices.shape[0]
+    options = qem_core.BuildOptions()
+    cx, _ = simplify._initial_complex(vertices, faces, options, unique_edges(faces, n), None,
+                                      owned=False)
+    assert np.count_nonzero(cx.faces == 0) == hub_faces
+    lists = make_face_lists(cx.faces, n, 6 * cx.faces.shape[0] + 1024, alive=cx.face_alive)
+    hood = make_neighbourhood(n)
+    heap = make_heap(int(cx.face_edge.max()) + 1)
+    cx.vertex_refused[[0, 2]] = 1  # the hub and a rim neighbour of vertex 1
+    look = simplify._look(cx, simplify._make_scratch(cx, options, None))
+    _, n_retry = update_vertex_edges(
+        cx.vertices, cx.vertex_quadrics, cx.vertex_refused, cx.edge_quadrics, cx.faces,
+        cx.face_alive, cx.face_edge, lists.start, lists.count, lists.pool, hood.near,
+        hood.generation, hood.retry, hood.part, heap.entries, heap.position, heap.size,
+        cost_key(np.inf), np.int64(1), np.bool_(False), False, simplify.RANK_TOLERANCE,
+        np.zeros(QUADRIC_SIZE), np.zeros(3), look)
+    retried = sorted(hood.retry[:n_retry].tolist())
     hub_retried = hub_faces <= RETRY_MAX_FACES
     assert retried == ([0, 2] if hub_retried else [2])
-    assert loop.cx.vertex_refused[2] == 0
-    assert loop.in_heap(1, 2) and loop.in_heap(1, hub_faces)
-    if hub_retried:
-        assert loop.cx.vertex_refused[0] == 0
-        assert loop.heap.size[0] == 3 and loop.in_heap(1, 0)
-    else:
-        assert loop.cx.vertex_refused[0] == 2  # one change of its rim counted
-        assert loop.heap.size[0] == 2
-
-
-def test_an_edge_refused_at_a_hub_comes_back_every_so_many_changes_and_at_the_end():
-    loop = FanLoop(RETRY_MAX_FACES + 1)
-    loop.cx.vertex_refused[0] = 1
-    for change in range(1, HUB_RETRY_EVERY):
-        loop.contracted_into(1)
-        assert not loop.in_heap(1, 0), change
-        assert loop.cx.vertex_refused[0] == change + 1
-    loop.contracted_into(1)
-    assert loop.in_heap(1, 0)
-    assert loop.cx.vertex_refused[0] == 1
-    # The edges to the hub from vertices that have not changed come back when the heap
-    # runs empty.
-    n_in = loop.heap.size[0]
-    added = readmit_refused_hubs(loop.cx, loop.lists, loop.hood, loop.heap, loop.params,
-                                 loop.scratch)
-    assert added == RETRY_MAX_FACES + 1 - 1  # every rim vertex's edge to the hub but 1's
-    assert loop.heap.size[0] == n_in + added
-    assert all(loop.in_heap(x, 0) for x in range(1, RETRY_MAX_FACES + 2))
-    assert readmit_refused_hubs(loop.cx, loop.lists, loop.hood, loop.heap, loop.params,
-                                loop.scratch) == 0
+    assert cx.vertex_refused[0] == (0 if hub_retried else 1)
+    assert cx.vertex_refused[2] == 0
+    assert heap.size[0] == 3  # vertex 1's edges to the hub and both rim neighbours
 
 
 @pytest.mark.parametrize("closed", [False, True])

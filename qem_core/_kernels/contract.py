@@ -522,7 +522,8 @@ def _run_contractions(cx, lists, pairs, hood, heap, record, params, max_steps, s
         if key > stop_key:
             return STATUS_STOP_COST, steps
         a, b, edge = top(heap_entries)
-        # The survivor is the vertex with more faces: fewer corners to relabel.
+        # The survivor is the vertex with more faces: fewer corners to relabel, and the
+        # guards and prefetches that read b's list read the shorter one.
         if count[b] > count[a]:
             a, b = b, a
         if used[0] + count[a] + count[b] > pool.shape[0]:

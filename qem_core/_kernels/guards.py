@@ -56,11 +56,10 @@ turn_ok = numba.njit(cache=True, inline="always")(_turn_ok)
 def _faces_keep_orientation(vertices, faces, face_normals, start, count, pool, a, b, px, py,
                             pz, cos_step):
     """Would every face that survives contracting a and b to p keep from flipping
-    (`turn_ok`)? The end with fewer faces is tried first: a refusal at a hub's edge is
-    mostly found at the other end, and then costs that end's faces, not the hub's."""
-    if count[a] > count[b]:
-        a, b = b, a
-    for v, other in ((a, b), (b, a)):
+    (`turn_ok`)? b, the end with fewer faces (the loop keeps the other as survivor), is
+    tried first: a refusal at a hub's edge is mostly found at the other end, and then
+    costs that end's faces, not the hub's."""
+    for v, other in ((b, a), (a, b)):
         s = start[v]
         for i in range(count[v]):
             f = pool[s + i]
@@ -80,21 +79,20 @@ def _leaves_a_vertex_bare(faces, start, count, pool, near, a, b):
     once pairs have joined parts, or without the link condition: all faces of an
     opposite vertex x may be faces abx (a lone triangle, faces doubled by a join), or
     a and b may have no other face. ``near`` is gathered for a and b."""
-    # The faces abx are found on the end with fewer faces (both ends list them all).
-    v, other = (b, a) if count[a] > count[b] else (a, b)
+    # The faces abx are found in b's list, the shorter (both ends list them all).
     n_dying = 0
-    s = start[v]
-    for i in range(count[v]):
-        x = opposite(faces, pool[s + i], v, other)
+    s = start[b]
+    for i in range(count[b]):
+        x = opposite(faces, pool[s + i], b, a)
         if x < 0:
             continue
         n_dying += 1
         if count[x] > near[x, NEAR_COUNT_A]:
             continue  # x has a face without a, which survives (the usual case)
         dying_at_x = 0
-        for j in range(count[v]):
+        for j in range(count[b]):
             h = pool[s + j]
-            if has_corner(faces, h, x) and has_corner(faces, h, other):
+            if has_corner(faces, h, x) and has_corner(faces, h, a):
                 dying_at_x += 1
         if dying_at_x == count[x]:
             return True

@@ -271,13 +271,10 @@ def double_cone(n_rim):
     """Two hubs (vertex 0 above, vertex n_rim + 1 below) joined by a flat rim of n_rim
     vertices: a closed sphere whose hubs have n_rim faces each, far past the prefetch and
     retry limits of contract.py."""
-    angles = np.linspace(0.0, 2.0 * np.pi, n_rim, endpoint=False)
-    rim = np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], axis=1)
-    vertices = np.vstack([[[0.0, 0.0, 1.0]], rim, [[0.0, 0.0, -1.0]]])
-    first = np.arange(n_rim) + 1
-    second = np.arange(1, n_rim + 1) % n_rim + 1
-    top = np.stack([np.zeros(n_rim, np.int64), first, second], axis=1)
-    bottom = np.stack([np.full(n_rim, n_rim + 1), second, first], axis=1)
+    vertices, top = flat_fan(n_rim, closed=True)
+    vertices[0] = (0.0, 0.0, 1.0)  # the fan's centre lifted: the upper hub
+    vertices = np.vstack([vertices, [[0.0, 0.0, -1.0]]])
+    bottom = np.stack([np.full(n_rim, n_rim + 1), top[:, 2], top[:, 1]], axis=1)
     return vertices, np.vstack([top, bottom])
 
 

@@ -400,9 +400,15 @@ def encode_split_frames(
     bits: int = 16,
     splits_per_frame: int = SPLITS_PER_FRAME,
     _frame=None,
+    *,
+    key_frames: bool = False,
 ) -> Iterator[bytes]:
     """Frames of the splits refining lod(n_from) to lod(n_to), generated lazily; the
-    arguments are checked at once (InvalidOptionsError), before the first frame."""
+    arguments are checked at once (InvalidOptionsError), before the first frame.
+
+    key_frames : every frame starts the range coder's contexts afresh and carries the
+    grid, so it decodes given only the level it refines (the stored streams: any run of
+    their frames is served as it is); else the frames of the stream share the contexts."""
     grid = grid_for(pm, bits)
     if not 1 <= splits_per_frame <= FRAME_SPLIT_LIMIT:
         raise InvalidOptionsError(
@@ -411,13 +417,56 @@ def encode_split_frames(
     n_from, n_to = pm.clamp(n_from), pm.clamp(n_to)
     if n_from > n_to:
         raise InvalidOptionsError(f"from={n_from} must not exceed to={n_to}")
-    return _split_frames(pm, n_from, n_to, grid, splits_per_frame, _frame)
+    return _split_frames(pm, n_from, n_to, grid, splits_per_frame, _frame, key_frames)
 
 
 def _split_frames(
-    pm: ProgressiveMesh, n_from: int, n_to: int, grid: Grid, splits_per_frame: int, _frame
+    pm: ProgressiveMesh,
+    n_from: int,
+    n_to: int,
+    grid: Grid,
+    splits_per_frame: int,
+    _frame,
+    key_frames: bool,
 ) -> Iterator[bytes]:
     """encode_split_frames' generator, its arguments checked."""
+    bounds = plan_frames(pm, n_from, n_to, splits_per_frame)
+    return encode_frame_run(pm, bounds, grid, key_frames=key_frames, _frame=_frame)
+
+
+def plan_frames(
+    pm: ProgressiveMesh, n_from: int, n_to: int, splits_per_frame: int = SPLITS_PER_FRAME
+) -> list[int]:
+    """Where the frames of a stream from lod(n_from) to lod(n_to) start and end: the
+    vertex counts ``[n_from, ..., n_to]``. Frames grow from FIRST_FRAME_SPLITS splits by
+    doubling up to ``splits_per_frame``, and end before a split that would pass the
+    decoders' work limits (FRAME_WORK_LIMIT, and WEDGE_WORK_LIMIT for a mesh with
+    wedges)."""
+    _, faces = pm.lod(n_from)
+    corner_counts = np.bincount(faces.ravel(), minlength=n_to).astype(np.int64)
+    wedge_limit = WEDGE_WORK_LIMIT if pm.attribute_layout is not None else -1
+    frame_splits = min(FIRST_FRAME_SPLITS, splits_per_frame)
+    bounds = [n_from]
+    start = n_from
+    while start < n_to:
+        stop = min(start + frame_splits, n_to)
+        frame_splits = min(2 * frame_splits, splits_per_frame)
+        splits = pm.splits(start, stop)
+        taken = plan_frame(
+            corner_counts, start, splits.split_vertex, splits.new_faces,
+            splits.new_face_counts, splits.relabel_offsets, FRAME_WORK_LIMIT, wedge_limit,
+        )  # fmt: skip
+        start = min(stop, start + taken)  # a frame the decoder would refuse as too much work
+        bounds.append(start)
+    return bounds
+
+
+def encode_frame_run(
+    pm: ProgressiveMesh, bounds: list[int], grid: Grid, *, key_frames: bool, _frame=None
+) -> Iterator[bytes]:
+    """The frames from ``bounds[0]`` to ``bounds[-1]``, frame ``i`` refining
+    lod(bounds[i]) to lod(bounds[i + 1]); see `encode_split_frames`."""
+    n_from, n_to = bounds[0], bounds[-1]
     vertices, faces = pm.lod(n_from)
     quantised = np.zeros((n_to, 3), np.int64)
     quantised[:n_from] = grid.quantise(vertices)
@@ -429,28 +478,16 @@ def _split_frames(
             held.grid, _state(faces, n_to, pm.n_faces(n_to)), held.face_wedges, held.values,
             pm.splits(n_to, n_to).wedges.wedges_from, pm.attribute_layout.scales.astype(np.float32),
         )  # fmt: skip
-    frame_splits = min(FIRST_FRAME_SPLITS, splits_per_frame)
-    start = n_from
-    contexts = None  # carried from frame to frame
-    corner_counts = np.bincount(faces.ravel(), minlength=n_to).astype(np.int64)
-    while start < n_to:
-        stop = min(start + frame_splits, n_to)
-        frame_splits = min(2 * frame_splits, splits_per_frame)
+    contexts = None  # carried from frame to frame unless every frame is a key frame
+    for start, stop in zip(bounds[:-1], bounds[1:], strict=True):
         splits = pm.splits(start, stop)
-        taken = plan_frame(
-            corner_counts, start, splits.split_vertex, splits.new_faces,
-            splits.new_face_counts, splits.relabel_offsets, FRAME_WORK_LIMIT,
-            -1 if wedges is None else WEDGE_WORK_LIMIT,
-        )  # fmt: skip
-        if start + taken < stop:  # a frame the decoder would refuse as too much work
-            stop = start + taken
-            splits = pm.splits(start, stop)
         if _frame is None:
             frame, contexts = _encode_frame(splits, state, quantised, grid, wedges, contexts)
+            if key_frames:
+                contexts = None
             yield frame
         else:
             yield _frame(splits, state, quantised, grid, wedges)
-        start = stop
 
 
 def split_frame_symbols(
@@ -626,6 +663,16 @@ class SplitStreamDecoder:
             else:
                 raise CorruptFileError(f"split frame: 'continues' is {continues!r}")
             k = n_to - n_from
+            if continues is False and 0 <= n_from < n_to <= self.n_vertices:
+                # A key frame of splits this decoder holds (a stored run served from a
+                # frame boundary below the level asked for): skipped.
+                return
+            if n_from < self.n_vertices < n_to:
+                raise InvalidOptionsError(
+                    f"the frame refines lod({n_from}) to lod({n_to}); this decoder holds "
+                    f"lod({self.n_vertices}), inside it: start from lod({n_from}) (a stored "
+                    "stream is served from the frame boundary at or below 'from')"
+                )
             if n_from != self.n_vertices or faces_from != self.faces.shape[0] or k < 0:
                 raise CorruptFileError(
                     f"frame refines {n_from} vertices / {faces_from} faces, the mesh has "
@@ -646,7 +693,7 @@ class SplitStreamDecoder:
                     self.wedge_grid,
                     self.quantised_values.shape[0],
                 )
-        except CorruptFileError:
+        except (CorruptFileError, InvalidOptionsError):
             raise
         except Exception as exc:  # msgpack, KeyError, TypeError...
             raise CorruptFileError(f"unreadable split frame: {exc}") from None

@@ -22,8 +22,8 @@ from starlette.concurrency import run_in_threadpool
 from . import __version__
 from .head_requests import HeadAsGet
 from .jobs import JobQueue, open_jobs
-from .lod_cache import LodCache
 from .problems import install_problem_handlers
+from .read_path import ReadPath
 from .routes import health, meshes
 from .routes.viewer import mount_viewer
 from .settings import Settings, get_settings
@@ -34,7 +34,9 @@ __all__ = ["create_app"]
 
 log = logging.getLogger("qem.server")
 
-_EXPOSED_HEADERS = sorted({*meshes.LOD_HEADERS, *meshes.SPLIT_HEADERS, "Content-Length"})
+_EXPOSED_HEADERS = sorted(
+    {*meshes.LOD_HEADERS, *meshes.SPLIT_HEADERS, "Content-Length", "Content-Range", "Accept-Ranges"}
+)
 
 
 def _start(settings: Settings) -> tuple[Storage, JobQueue]:
@@ -63,7 +65,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         storage, jobs = await run_in_threadpool(_start, settings)
         app.state.storage = storage
         app.state.jobs = jobs
-        app.state.lod_cache = LodCache(storage, settings.mesh_cache_size, settings.lod_cache_bytes)
+        app.state.reads = ReadPath(storage, settings)
         log.info("serving %s (%d worker(s))", settings.data_dir, settings.workers)
         try:
             yield
@@ -87,7 +89,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         CORSMiddleware,
         allow_origins=list(settings.cors_allow_origins),
         allow_methods=["GET", "HEAD"],
-        allow_headers=["If-None-Match"],
+        allow_headers=["If-None-Match", "Range", "If-Range"],
         expose_headers=_EXPOSED_HEADERS,
         max_age=86400,
     )

@@ -14,21 +14,21 @@ from fastapi import Depends, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from .jobs import JobQueue
-from .lod_cache import LodCache
 from .problems import Problem
+from .read_path import ReadPath
 from .settings import Settings
 from .storage import Storage
 
 __all__ = [
-    "CacheDep",
     "JobsDep",
+    "ReadsDep",
     "KnownQueryOnly",
     "SingleQueryValues",
     "SettingsDep",
     "StorageDep",
     "WriterDep",
     "app_settings",
-    "lod_cache",
+    "read_path",
     "job_queue",
     "refuse_repeated_query",
     "refuse_unknown_query",
@@ -49,14 +49,14 @@ def job_queue(request: Request) -> JobQueue:
     return request.app.state.jobs
 
 
-def lod_cache(request: Request) -> LodCache:
-    return request.app.state.lod_cache
+def read_path(request: Request) -> ReadPath:
+    return request.app.state.reads
 
 
 SettingsDep = Annotated[Settings, Depends(app_settings)]
 StorageDep = Annotated[Storage, Depends(storage)]
 JobsDep = Annotated[JobQueue, Depends(job_queue)]
-CacheDep = Annotated[LodCache, Depends(lod_cache)]
+ReadsDep = Annotated[ReadPath, Depends(read_path)]
 
 _bearer = HTTPBearer(
     auto_error=False,

@@ -8,14 +8,13 @@ meshes. Concurrent misses on the same progressive mesh load it once.
 
 from __future__ import annotations
 
-import threading
-from collections import OrderedDict
 from dataclasses import dataclass
 
 import qem_core
 from qem_core import codecs
 from qem_core import stream as split_stream
 
+from .lru import LruCache
 from .storage import MeshRecord, Storage
 
 __all__ = ["EncodedLod", "LodCache"]
@@ -39,13 +38,11 @@ class EncodedLod:
 class LodCache:
     def __init__(self, storage: Storage, mesh_capacity: int, byte_budget: int) -> None:
         self._storage = storage
-        self._mesh_capacity = mesh_capacity
-        self._byte_budget = byte_budget
-        self._lock = threading.Lock()
-        self._meshes: OrderedDict[str, object] = OrderedDict()
-        self._loading: dict[str, threading.Lock] = {}
-        self._lods: OrderedDict[tuple[str, int, str], EncodedLod] = OrderedDict()
-        self._lod_bytes = 0
+        self._meshes: LruCache[str, object] = LruCache(mesh_capacity)
+        # one huge level must not flush everything
+        self._lods: LruCache[tuple[str, int, str], EncodedLod] = LruCache(
+            byte_budget, lambda lod: len(lod.content), max_entry=byte_budget // 4
+        )
 
     def progressive_mesh(self, record: MeshRecord):
         """The `qem_core.ProgressiveMesh` of a ready record.
@@ -54,35 +51,23 @@ class LodCache:
         key = record.qpm_key
         if key is None:
             raise FileNotFoundError(f"mesh {record.id} has no progressive mesh yet")
-        with self._lock:
-            if key in self._meshes:
-                self._meshes.move_to_end(key)
-                return self._meshes[key]
-            loading = self._loading.setdefault(key, threading.Lock())
-        with loading:
-            with self._lock:
-                if key in self._meshes:
-                    return self._meshes[key]
-            try:
-                with self._storage.blobs.local_path(key) as path:
-                    pm = qem_core.load(path)
-            finally:
-                with self._lock:
-                    self._loading.pop(key, None)
-            with self._lock:
-                self._meshes[key] = pm
-                while len(self._meshes) > self._mesh_capacity:
-                    self._meshes.popitem(last=False)
-            return pm
+
+        def load():
+            with self._storage.blobs.local_path(key) as path:
+                return qem_core.load(path)
+
+        return self._meshes.get(key, load)
+
+    def cached_lod(self, record: MeshRecord, n_vertices: int, format: str) -> EncodedLod | None:
+        """Level `n_vertices` in `format` if it is in memory (never blocks)."""
+        return self._lods.peek((record.qpm_key or "", int(n_vertices), format))
 
     def lod(self, record: MeshRecord, n_vertices: int, format: str) -> EncodedLod:
         """Level `n_vertices` (already clamped into the mesh's range) in `format`."""
         key = (record.qpm_key or "", int(n_vertices), format)
-        with self._lock:
-            found = self._lods.get(key)
-            if found is not None:
-                self._lods.move_to_end(key)
-                return found
+        found = self._lods.peek(key)
+        if found is not None:
+            return found
         pm = self.progressive_mesh(record)
         level = pm.lod_mesh(n_vertices)  # with the appearance attributes, if any
         vertices, faces = level.vertices, level.faces
@@ -102,20 +87,10 @@ class LodCache:
             n_faces=int(len(faces)),
             error=float(pm.error(n_vertices)),
         )
-        size = len(encoded.content)
-        if size <= self._byte_budget // 4:  # one huge level must not flush everything
-            with self._lock:
-                if key not in self._lods:
-                    self._lods[key] = encoded
-                    self._lod_bytes += size
-                while self._lod_bytes > self._byte_budget:
-                    _, dropped = self._lods.popitem(last=False)
-                    self._lod_bytes -= len(dropped.content)
+        self._lods.put(key, encoded)
         return encoded
 
     def evict(self, record: MeshRecord) -> None:
         """Forget everything cached for `record` (after it was deleted)."""
-        with self._lock:
-            self._meshes.pop(record.qpm_key or "", None)
-            for key in [key for key in self._lods if key[0] == record.qpm_key]:
-                self._lod_bytes -= len(self._lods.pop(key).content)
+        self._meshes.drop(lambda key: key == record.qpm_key)
+        self._lods.drop(lambda key: key[0] == record.qpm_key)

@@ -46,6 +46,7 @@ log = logging.getLogger("qem.server")
 # kind -> (status, title). The type URI of a kind is /problems/<kind>.
 PROBLEM_KINDS: dict[str, tuple[int, str]] = {
     "bad-upload": (400, "The upload could not be read"),
+    "invalid-range": (400, "The Range header is not one byte range"),
     "unauthorized": (401, "A bearer token is required"),
     "forbidden": (403, "The bearer token is not valid"),
     "mesh-not-found": (404, "No such mesh"),
@@ -53,6 +54,7 @@ PROBLEM_KINDS: dict[str, tuple[int, str]] = {
     "mesh-not-ready": (409, "The mesh is not built yet"),
     "mesh-failed": (409, "The mesh could not be built"),
     "upload-too-large": (413, "The upload is too large"),
+    "range-not-satisfiable": (416, "The range is past the end"),
     "unsupported-format": (415, "Unsupported mesh format"),
     "invalid-request": (422, "Invalid request parameters"),
     "invalid-mesh": (422, "Invalid mesh"),

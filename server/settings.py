@@ -54,6 +54,11 @@ class Settings(BaseSettings):
     workers : number of build worker processes.
     mesh_cache_size : how many loaded progressive meshes stay in memory.
     lod_cache_bytes : memory budget of encoded levels kept for repeated requests.
+    stream_at_build : a build encodes the mesh's split stream and stores it beside the
+        .qpm before the mesh is ready (default); off, the first request for the stream
+        makes and stores it (quicker to ready, slower first viewer).
+    stream_cache_bytes : memory budget of stored split streams kept in memory (each is
+        read from the store once, its CRC checked, then served from memory).
     max_build_attempts : a build interrupted this many times (restart, worker crash) is
         marked failed instead of being requeued again.
     max_build_seconds : a build still running after this long is stopped and its mesh
@@ -80,6 +85,8 @@ class Settings(BaseSettings):
     workers: int = Field(default_factory=_default_workers, ge=1, le=64)
     mesh_cache_size: int = Field(8, ge=1, le=1024)
     lod_cache_bytes: int = Field(256 * 2**20, ge=0, le=64 * 2**30)
+    stream_at_build: bool = True
+    stream_cache_bytes: int = Field(256 * 2**20, ge=0, le=64 * 2**30)
     max_build_attempts: int = Field(3, ge=1, le=100)
     max_build_seconds: float = Field(600.0, gt=0.0, le=7 * 86400.0, allow_inf_nan=False)
     progress_interval_s: float = Field(0.5, gt=0.0, le=60.0, allow_inf_nan=False)

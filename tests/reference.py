@@ -244,3 +244,13 @@ def ancestors(pm, n: int) -> np.ndarray:
     while np.any(parent >= n):
         parent = parent[parent]
     return parent
+
+
+def assert_decoded_level(decoder, pm, n: int) -> None:
+    """The split stream decoder holds exactly ``pm.lod(n)`` on the stream's grid."""
+    from qem_core.stream import grid_for
+
+    vertices, faces = pm.lod(n)
+    assert decoder.n_vertices == n
+    np.testing.assert_array_equal(decoder.faces, faces)
+    np.testing.assert_array_equal(decoder.quantised, grid_for(pm).quantise(vertices))

@@ -40,7 +40,7 @@ from . import range_coder as rc
 
 # Kernels that allocate nothing and return no array: no reference counting (as in
 # range_coder.py), a call costs no atomics per array argument.
-_kernel = numba.njit(cache=True, _nrt=False)
+_kernel = numba.njit(cache=True, nogil=True, _nrt=False)
 
 ESCAPE = 255
 EXPLICIT = 6
@@ -223,7 +223,7 @@ def _gather(faces, head, nxt, s, cs, nb):
     return nc, _distinct_sorted(nb, m)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _distinct_sorted(values, n):
     """Sort values[:n] in place and drop repeats; returns the new length."""
     _sort_prefix(values, n)
@@ -360,7 +360,7 @@ def _append_face(faces, head, nxt, f, a, b, c):
         head[v] = corner
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _scratch_start():
     """The buffers of a coder or decoder: cs, nb, mark, ys, keys of _gather, _predict and
     _walk (``_scratch`` grows them), sums of _span_prediction, six 3-vectors (prediction,
@@ -377,7 +377,7 @@ def _scratch_start():
     )
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _scratch(head, nxt, s, cs, nb, mark, ys, keys):
     """The buffers of _gather, _predict and _walk, grown for the corners of s if need
     be."""
@@ -442,7 +442,7 @@ def _span_prediction(faces, head, nxt, s, t, quantised, nb, sums, prediction):
         prediction[d] = pt - ps
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _ring_room(head, nxt, s, t, nb):
     """nb, grown to hold twice the corners of s and of t if need be."""
     need = 0
@@ -457,7 +457,7 @@ def _ring_room(head, nxt, s, t, nb):
     return nb if need <= nb.shape[0] else np.empty(2 * need, np.int64)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _grow(array, need):
     if need <= array.shape[0]:
         return array
@@ -714,7 +714,7 @@ def plan_frame(corner_counts, n_from, split_vertex, new_faces, new_face_counts,
     return split_vertex.shape[0]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def encode_connectivity(
     faces,
     faces_from,
@@ -1018,7 +1018,7 @@ def _decode_value(dec, data, probs, slots):
     return magnitude
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def decode_connectivity(
     faces,
     faces_from,

@@ -93,18 +93,18 @@ _ROW_CLASSES = 8  # bit length of the previous row's value in the column, capped
 _COLUMN_CLASSES = 4  # bit length of the previous column's value in the row, capped
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def wedge_context_slots(width):
     """The probability slots the wedge fields of ``width`` columns use."""
     return _ROW_SLOTS + width * _ROW_CLASSES * _COLUMN_CLASSES * rc.INTEGER_SLOTS
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _symbol_class(symbol):
     return 0 if symbol == 0 else (2 if symbol == ESCAPE else 1)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _row_context(rows, r, d):
     """The context block of value rows[r, d] (module docstring)."""
     above = _bit_length(rows[r - 1, d]) if r > 0 else 0
@@ -113,7 +113,7 @@ def _row_context(rows, r, d):
     return _ROW_SLOTS + (block + min(left, _COLUMN_CLASSES - 1)) * rc.INTEGER_SLOTS
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def code_wedge_fields(enc, out, probs, counts, symbols, backs, rows):
     """Range-code a frame's wedge fields (counts (3, K), symbols, backs, rows (R, k))
     in the order ``decode_wedge_fields`` reads them. Returns 0, or 1 when an integer was
@@ -140,7 +140,7 @@ def code_wedge_fields(enc, out, probs, counts, symbols, backs, rows):
     return bad
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def decode_wedge_fields(data, k, n_symbols, n_backs, n_rows, width, probs):
     """Inverse of ``code_wedge_fields`` over all of ``data`` (the caller bounds the
     counts first) with the contexts ``probs`` (``wedge_context_slots(width)`` of them,
@@ -216,7 +216,7 @@ class SplitRun(NamedTuple):
     relabel_faces: np.ndarray
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def code_wedges(
     decoding, level, n_faces, n_wedges, n_from, run, records, counts, symbols, backs, rows
 ):
@@ -332,7 +332,7 @@ def code_wedges(
     return status, symbols, backs, rows, at, n_wedges
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _targets(
     level, records, i, cs, nc, old, ws, nws, first_face, face, new, counts, targets, extras
 ):
@@ -367,7 +367,7 @@ def _targets(
     counts[2, i] = n_extra
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _code_corners(
     decoding,
     level,
@@ -475,7 +475,7 @@ def _code_corners(
     return 0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _code_extra_relabels(decoding, level, n_extra, n_corners, after, extras, backs, at):
     """Extra relabels: corners outside s's fan and the new faces (encoding: the pairs
     in extras). Returns a status."""
@@ -499,7 +499,7 @@ def _code_extra_relabels(decoding, level, n_extra, n_corners, after, extras, bac
     return 0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _code_values(
     decoding,
     level,
@@ -574,7 +574,7 @@ def _code_values(
     return 0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _in_grid(values, wedge, q_max):
     for d in range(values.shape[1]):
         if values[wedge, d] < 0 or values[wedge, d] > q_max[d]:
@@ -582,7 +582,7 @@ def _in_grid(values, wedge, q_max):
     return True
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _predict_new_corner(level, c, s, t, cs, nc, old, mine):
     """(The predicted wedge of corner c of a new face (module docstring), -1 when its
     vertex has no earlier corner to copy; the corners read of that vertex). ``mine`` is
@@ -625,7 +625,7 @@ def _predict_new_corner(level, c, s, t, cs, nc, old, mine):
     return (predicted if predicted >= 0 else first), read
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _sorted_corners(head, nxt, v, below, out):
     """v's corners numbered below ``below``, ascending, into out (grown if need be);
     returns (out, their count, the count of all v's corners: those read)."""
@@ -646,7 +646,7 @@ def _sorted_corners(head, nxt, v, below, out):
     return out, n, count
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _face_score(faces, face, u, w, preferred_a, preferred_b):
     """2 if the face holds a preferred vertex, 1 if it holds u or w, else 0 (-1 for a
     preferred vertex means none)."""
@@ -660,7 +660,7 @@ def _face_score(faces, face, u, w, preferred_a, preferred_b):
     return score
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _grow_rows(rows, need):
     if need <= rows.shape[0]:
         return rows

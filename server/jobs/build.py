@@ -15,14 +15,17 @@ import qem_core
 from qem_core import codecs
 
 from ..storage import Storage, new_token, qpm_key
+from ..stored_streams import write_stream
 
 __all__ = ["BuildAborted", "BuildTimedOut", "run_build"]
 
 log = logging.getLogger("qem.jobs")
 
-# Share of the progress bar given to reading the upload; saving takes the last step.
+# Shares of the progress bar: reading the upload, the build, encoding the split stream;
+# saving takes the last step.
 _READ_SHARE = 0.02
-_BUILD_SHARE = 0.96
+_BUILD_SHARE = 0.88
+_STREAM_SHARE = 0.08
 
 
 class BuildAborted(Exception):
@@ -71,6 +74,9 @@ class _ProgressWriter:
     def build_share(self, fraction: float) -> None:
         self(_READ_SHARE + _BUILD_SHARE * min(1.0, max(0.0, float(fraction))))
 
+    def stream_share(self, fraction: float) -> None:
+        self(_READ_SHARE + _BUILD_SHARE + _STREAM_SHARE * min(1.0, max(0.0, float(fraction))))
+
 
 def run_build(
     storage: Storage,
@@ -79,6 +85,7 @@ def run_build(
     progress_interval: float = 0.5,
     should_abort: Callable[[], bool] | None = None,
     max_seconds: float | None = None,
+    store_stream: bool = True,
 ) -> str:
     """Build the queued mesh `mesh_id` and record the outcome.
 
@@ -86,6 +93,8 @@ def run_build(
     not queued (already claimed, finished or deleted) or the attempt was aborted. Bad
     input never raises: it becomes ``failed`` with the reason in the record's ``error``.
     A build still running ``max_seconds`` after its start (None: no limit) fails too.
+    With ``store_stream`` the split stream is encoded and stored beside the .qpm before
+    the mesh is ready; without, the first request for it makes it.
     """
     token = new_token()
     record = storage.metadata.claim(mesh_id, token)
@@ -106,6 +115,8 @@ def run_build(
         key = qpm_key(mesh_id, token)
         with storage.blobs.staged_path(key) as staged:
             pm.save(staged)
+        if store_stream:  # encoded once here, so that serving it is sending bytes
+            write_stream(storage.blobs, key, pm, progress=progress.stream_share)
         bbox = tuple(tuple(float(x) for x in corner) for corner in pm.bbox)
         finished = storage.metadata.finish(
             mesh_id,
@@ -117,7 +128,7 @@ def run_build(
             bbox=bbox,
         )
         if not finished:
-            storage.blobs.delete(key)
+            storage.delete_build(key)
             return "skipped"
         log.info(
             "mesh %s (%s) ready: %d vertices, %d faces, base %d, %.1f s",

@@ -94,6 +94,7 @@ def _build_in_worker(mesh_id: str) -> str:
             mesh_id,
             progress_interval=_worker_settings.progress_interval_s,
             max_seconds=_worker_settings.max_build_seconds,
+            store_stream=_worker_settings.stream_at_build,
             should_abort=_parent_is_gone,
         )
     finally:

@@ -5,16 +5,20 @@ build), so their responses carry a strong ETag derived from the .qpm key, the le
 the format (and the split stream's version, whose frames and grids the msgpack levels
 and streams follow), are cacheable for a year, and answer ``If-None-Match`` with 304
 without loading anything (a texture once its mesh is known to have one).
+
+The read endpoints are the hot path: with the record, the level or the stored stream in
+memory (`ReadPath`), they answer on the event loop with bytes already made; only a miss
+goes to a worker thread (database, blob store, extraction).
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
 from pathlib import Path
 from typing import Annotated
 
 from fastapi import APIRouter, Header, Query, Request, Response
-from fastapi.responses import StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
 import qem_core
@@ -23,15 +27,17 @@ from qem_core import stream as split_stream
 
 from .. import __version__
 from ..deps import (
-    CacheDep,
     JobsDep,
     KnownQueryOnly,
+    ReadsDep,
     SettingsDep,
     SingleQueryValues,
     StorageDep,
     WriterDep,
 )
 from ..problems import Problem, problem_responses
+from ..ranges import byte_range, if_range_holds
+from ..read_path import ReadPath
 from ..schemas import (
     LodFormat,
     MeshInfo,
@@ -51,6 +57,7 @@ router = APIRouter(prefix="/v1/meshes", tags=["meshes"], dependencies=[SingleQue
 IMMUTABLE = "public, max-age=31536000, immutable"
 LOD_HEADERS = ("ETag", "X-Lod-Vertices", "X-Lod-Faces", "X-Lod-Error")
 SPLIT_HEADERS = ("ETag", "X-Splits-From", "X-Splits-To")
+STREAM_MEDIA_TYPE = split_stream.MEDIA_TYPE
 
 _UPLOAD_BODY = {
     "required": True,
@@ -74,8 +81,15 @@ def _find(storage, mesh_id: str) -> MeshRecord:
     return record
 
 
-def _find_ready(storage, mesh_id: str) -> MeshRecord:
-    record = _find(storage, mesh_id)
+async def _find_ready(reads: ReadPath, mesh_id: str) -> MeshRecord:
+    """The record of a ready mesh: from memory, else from the database (in a thread);
+    a problem when it is missing, failed or not built yet."""
+    record = reads.cached_record(mesh_id)
+    if record is not None:
+        return record
+    record = await run_in_threadpool(reads.record, mesh_id)
+    if record is None:
+        raise Problem("mesh-not-found", f"no mesh has id {mesh_id!r}")
     if record.status == "failed":
         raise Problem(
             "mesh-failed",
@@ -101,10 +115,14 @@ def _clamp(record: MeshRecord, n: int | None) -> int:
     return min(max(n, record.n_base), record.n_vertices)
 
 
-def _etag(record: MeshRecord, *parts: object) -> str:
-    key = "|".join(str(part) for part in (__version__, record.qpm_key, *parts))
-    return '"' + hashlib.sha256(key.encode()).hexdigest()[:32] + '"'
+@functools.lru_cache(maxsize=4096)
+def _build_tag(qpm_key: str | None) -> str:
+    """A name for one build as served by this version of the server (hashed once)."""
+    return hashlib.sha256(f"{__version__}|{qpm_key}".encode()).hexdigest()[:24]
 
+
+def _etag(record: MeshRecord, *parts: object) -> str:
+    return '"' + "-".join((_build_tag(record.qpm_key), *map(str, parts))) + '"'
 
 def _matches(if_none_match: str | None, etag: str) -> bool:
     """If-None-Match uses the weak comparison (RFC 9110, 13.1.2)."""
@@ -200,10 +218,9 @@ def get_mesh(mesh_id: str, storage: StorageDep, response: Response) -> MeshInfo:
         **problem_responses(404, 409, 422),
     },
 )
-def get_lod(
+async def get_lod(
     mesh_id: str,
-    storage: StorageDep,
-    cache: CacheDep,
+    reads: ReadsDep,
     vertices: Annotated[
         int | None,
         Query(
@@ -215,12 +232,14 @@ def get_lod(
     format: Annotated[LodFormat, Query(description="encoding of the mesh")] = "ply",
     if_none_match: Annotated[str | None, Header()] = None,
 ) -> Response:
-    record = _find_ready(storage, mesh_id)
+    record = await _find_ready(reads, mesh_id)
     n = _clamp(record, vertices)
     etag = _etag(record, "lod", n, format, split_stream.STREAM_VERSION)
     if _matches(if_none_match, etag):
         return _not_modified(etag, {"X-Lod-Vertices": str(n)})
-    lod = cache.lod(record, n, format)
+    lod = reads.levels.cached_lod(record, n, format)
+    if lod is None:
+        lod = await run_in_threadpool(reads.levels.lod, record, n, format)
     stem = Path(record.name).stem or record.id
     return Response(
         lod.content,
@@ -239,21 +258,23 @@ def get_lod(
 @router.get(
     "/{mesh_id}/splits",
     dependencies=[KnownQueryOnly],
-    summary="The vertex splits refining one level to another, streamed",
-    response_class=StreamingResponse,
+    summary="The vertex splits refining one level to another: stored bytes, Range honoured",
+    response_class=Response,
     responses={
         200: {
-            "description": "msgpack frames of vertex splits (see docs/formats.md)",
-            "content": {split_stream.MEDIA_TYPE: {}},
+            "description": "msgpack frames of vertex splits (see docs/formats.md): the run "
+            "of the mesh's stored frames that covers [from, to], its real range in "
+            "X-Splits-From and X-Splits-To",
+            "content": {STREAM_MEDIA_TYPE: {}},
         },
+        206: {"description": "the bytes a Range header asked for (Content-Range)"},
         304: {"description": "not modified (If-None-Match)"},
-        **problem_responses(404, 409, 422),
+        **problem_responses(400, 404, 409, 416, 422),
     },
 )
-def get_splits(
+async def get_splits(
     mesh_id: str,
-    storage: StorageDep,
-    cache: CacheDep,
+    reads: ReadsDep,
     from_: Annotated[
         int | None,
         Query(alias="from", ge=1, description="vertex count held; default: the base mesh"),
@@ -263,8 +284,17 @@ def get_splits(
         Query(ge=1, description="vertex count wanted; default: the full mesh"),
     ] = None,
     if_none_match: Annotated[str | None, Header()] = None,
+    range_: Annotated[
+        str | None, Header(alias="Range", description="one byte range, e.g. bytes=1000-")
+    ] = None,
+    if_range: Annotated[str | None, Header()] = None,
 ) -> Response:
-    record = _find_ready(storage, mesh_id)
+    """The frames are stored when the mesh is built, every one decodable given only the
+    level it refines; the answer is the smallest run of them covering ``from``..``to``,
+    so it may start below ``from`` and end above ``to`` (X-Splits-From, X-Splits-To):
+    a client skips the splits it holds, and moves its level down to ``to`` if it wants
+    exactly that."""
+    record = await _find_ready(reads, mesh_id)
     assert record.n_base is not None
     n1 = _clamp(record, record.n_base if from_ is None else from_)
     n2 = _clamp(record, to)
@@ -274,16 +304,33 @@ def get_splits(
             f"from={n1} is above to={n2} (after clamping into [{record.n_base}, "
             f"{record.n_vertices}]); splits only refine, so ask for lod?vertices={n2}",
         )
-    etag = _etag(record, "splits", split_stream.STREAM_VERSION, n1, n2)
-    headers = {"X-Splits-From": str(n1), "X-Splits-To": str(n2)}
+    stream = reads.streams.cached(record)
+    if stream is None:
+        stream = await run_in_threadpool(reads.streams.get, record)
+    index = stream.index
+    first, last = index.covering(n1, n2)
+    if first == last:
+        served_from = served_to = n1
+    else:
+        served_from, served_to = index.vertices[first], index.vertices[last]
+    etag = _etag(record, "splits", split_stream.STREAM_VERSION, served_from, served_to)
+    headers = {
+        "ETag": etag,
+        "Cache-Control": IMMUTABLE,
+        "Accept-Ranges": "bytes",
+        "X-Splits-From": str(served_from),
+        "X-Splits-To": str(served_to),
+    }
     if _matches(if_none_match, etag):
         return _not_modified(etag, headers)
-    pm = cache.progressive_mesh(record)  # load now, so a damaged file is a problem response
-    return StreamingResponse(
-        split_stream.encode_split_frames(pm, n1, n2),
-        media_type=split_stream.MEDIA_TYPE,
-        headers={"ETag": etag, "Cache-Control": IMMUTABLE, **headers},
-    )
+    start, stop = index.byte_span(first, last)
+    body = stream.data if stop - start == len(stream.data) else stream.data[start:stop]
+    part = byte_range(range_, len(body)) if if_range_holds(if_range, etag) else None
+    if part is None:
+        return Response(body, media_type=STREAM_MEDIA_TYPE, headers=headers)
+    low, high = part
+    headers["Content-Range"] = f"bytes {low}-{high - 1}/{len(body)}"
+    return Response(body[low:high], 206, media_type=STREAM_MEDIA_TYPE, headers=headers)
 
 
 @router.get(
@@ -300,20 +347,19 @@ def get_splits(
         **problem_responses(404, 409),
     },
 )
-def get_texture(
+async def get_texture(
     mesh_id: str,
-    storage: StorageDep,
-    cache: CacheDep,
+    reads: ReadsDep,
     if_none_match: Annotated[str | None, Header()] = None,
 ) -> Response:
     """The texture of a mesh uploaded with one (a GLB with its image): the image that
     the UVs of every level refer to, also embedded in its GLB and msgpack levels. A 404
     problem ``texture-not-found`` when the mesh has none (an OBJ upload does not bring
     the image its material names)."""
-    record = _find_ready(storage, mesh_id)
+    record = await _find_ready(reads, mesh_id)
     # Whether there is a texture first: ``If-None-Match: *`` on a mesh without one is a
     # 404, not a 304 (the progressive mesh is cached, so this rarely loads anything).
-    pm = cache.progressive_mesh(record)
+    pm = await run_in_threadpool(reads.levels.progressive_mesh, record)
     if pm.texture is None:
         raise Problem("texture-not-found", f"mesh {mesh_id} has no texture image")
     etag = _etag(record, "texture")
@@ -334,11 +380,11 @@ def get_texture(
     summary="Delete a mesh and its data",
     responses=problem_responses(401, 403, 404),
 )
-def delete_mesh(mesh_id: str, _: WriterDep, storage: StorageDep, cache: CacheDep) -> Response:
+def delete_mesh(mesh_id: str, _: WriterDep, storage: StorageDep, reads: ReadsDep) -> Response:
     record = storage.delete_mesh(mesh_id)
     if record is None:
         raise Problem("mesh-not-found", f"no mesh has id {mesh_id!r}")
-    cache.evict(record)
+    reads.evict(record)
     return Response(status_code=204)
 
 

@@ -5,6 +5,10 @@
 
     uploads/<id>              the file as uploaded
     meshes/<id>/<token>.qpm   the progressive mesh built by attempt <token>
+    meshes/<id>/<token>.splits       its split stream, base to full, every frame a key
+                                     frame (qem_core.stored_stream), written by the build
+    meshes/<id>/<token>.splits.json  the index of that stream's frames; written after the
+                                     stream, so a stream without an index is unfinished
 """
 
 from __future__ import annotations
@@ -36,6 +40,8 @@ __all__ = [
     "new_token",
     "open_storage",
     "qpm_key",
+    "stream_index_key",
+    "stream_key",
     "upload_key",
 ]
 
@@ -48,6 +54,16 @@ def upload_key(mesh_id: str) -> str:
 
 def qpm_key(mesh_id: str, token: str) -> str:
     return f"meshes/{mesh_id}/{token}.qpm"
+
+
+def stream_key(qpm: str) -> str:
+    """The stored split stream of the build whose .qpm is ``qpm``."""
+    return qpm.removesuffix(".qpm") + ".splits"
+
+
+def stream_index_key(qpm: str) -> str:
+    """The frame index of that stream."""
+    return stream_key(qpm) + ".json"
 
 
 @dataclass
@@ -65,6 +81,11 @@ class Storage:
                 self.blobs.delete(key)
             self.blobs.delete(record.upload_key)
         return record
+
+    def delete_build(self, qpm: str) -> None:
+        """Remove the blobs of one build: its .qpm, stream and stream index."""
+        for key in (qpm, stream_key(qpm), stream_index_key(qpm)):
+            self.blobs.delete(key)
 
     def collect_garbage(self) -> int:
         """Remove temporary files of interrupted writes and blobs that no record refers
@@ -92,8 +113,12 @@ def _referenced(key: str, records: dict[str, MeshRecord]) -> bool:
     if parts[0] == "uploads":
         return key == record.upload_key
     if parts[0] == "meshes":
-        # Keep the published .qpm; while building, the attempt's own file may appear.
-        return key == record.qpm_key or record.status in UNFINISHED
+        # Keep the published build (its .qpm, stream and index); while building, the
+        # attempt's own files may appear.
+        if record.status in UNFINISHED:
+            return True
+        qpm = record.qpm_key
+        return qpm is not None and key in (qpm, stream_key(qpm), stream_index_key(qpm))
     return False
 
 

@@ -342,7 +342,9 @@ def test_splits_stream(client, sphere):
     response = client.get(url, params={"from": sphere["min_vertices"], "to": 40})
     assert response.status_code == 200, response.text
     assert response.headers["x-splits-from"] == str(sphere["min_vertices"])
-    assert response.headers["x-splits-to"] == "40"
+    # The stored stream's first frame covers [min_vertices, 40]: it is served whole.
+    assert int(response.headers["x-splits-to"]) >= 40
+    assert response.headers["accept-ranges"] == "bytes"
     assert len(response.content) > 0
     assert (
         client.get(url, headers={"If-None-Match": client.get(url).headers["etag"]}).status_code

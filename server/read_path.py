@@ -1,0 +1,56 @@
+"""What the read endpoints keep in memory: records that can no longer change, loaded
+progressive meshes and encoded levels (`LodCache`), stored split streams (`StreamCache`).
+
+A ready record changes only by being deleted, so once read it is kept: a request for a
+cached level or a stored stream then does no database round trip, no file read and no
+encoding, and its handler runs on the event loop without a thread hop. Deleting a mesh
+through this process evicts everything of it at once. (Replicas that share a database
+would each need to hear of a delete; the embedded deployment has one process serving.)
+"""
+
+from __future__ import annotations
+
+import threading
+
+from .lod_cache import LodCache
+from .lru import LruCache
+from .settings import Settings
+from .storage import MeshRecord, Storage
+from .stored_streams import StreamCache
+
+__all__ = ["ReadPath"]
+
+_READY_RECORDS = 4096
+
+
+class ReadPath:
+    def __init__(self, storage: Storage, settings: Settings) -> None:
+        self.storage = storage
+        self.levels = LodCache(storage, settings.mesh_cache_size, settings.lod_cache_bytes)
+        self.streams = StreamCache(storage, self.levels, settings.stream_cache_bytes)
+        self._ready: LruCache[str, MeshRecord] = LruCache(_READY_RECORDS)
+        # Ids deleted by this process: a read that fetched the record just before the
+        # delete must not put it back after the delete evicted it.
+        self._deleted: LruCache[str, bool] = LruCache(_READY_RECORDS)
+        self._lock = threading.Lock()
+
+    def cached_record(self, mesh_id: str) -> MeshRecord | None:
+        """The record of a ready mesh if this process has read it (never blocks)."""
+        return self._ready.peek(mesh_id)
+
+    def record(self, mesh_id: str) -> MeshRecord | None:
+        """The record from the database (blocking); kept when it is ready."""
+        record = self.storage.metadata.get(mesh_id)
+        if record is not None and record.status == "ready":
+            with self._lock:
+                if self._deleted.peek(mesh_id) is None:
+                    self._ready.put(mesh_id, record)
+        return record
+
+    def evict(self, record: MeshRecord) -> None:
+        """Forget everything of a deleted mesh."""
+        with self._lock:
+            self._deleted.put(record.id, True)
+            self._ready.drop(lambda key: key == record.id)
+        self.levels.evict(record)
+        self.streams.evict(record)

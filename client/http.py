@@ -6,8 +6,7 @@
         mesh_id = qem.upload("bunny.ply")
         qem.wait_ready(mesh_id, timeout=600)
         ply = qem.lod(mesh_id, 5000, "ply")
-        for frame in qem.splits(mesh_id, 5000, 20000):
-            ...
+        level = qem.refine(mesh_id, 20000, n_from=5000)  # exactly lod(20000), grid integers
 
 Errors:
 
@@ -22,6 +21,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -314,9 +314,44 @@ class QemClient:
         return response.headers["content-type"], response.content
 
     def splits(self, mesh_id: str, n1: int | None = None, n2: int | None = None) -> Iterator[bytes]:
-        """The vertex-split stream refining level `n1` to `n2` (None: base and full),
-        as it arrives: one frame payload (bytes) at a time, as
-        `qem_core.stream.SplitStreamDecoder.feed` takes them."""
+        """The stored vertex-split frames covering level `n1` to `n2` (None: base and
+        full), as they arrive: one frame payload (bytes) at a time, as
+        `qem_core.stream.SplitStreamDecoder.feed` takes them. The run starts at the frame
+        boundary at or below `n1` and ends at the one at or above `n2` (the server's
+        X-Splits-From and X-Splits-To); `refine` handles that for you."""
+        with self._split_frames(mesh_id, n1, n2) as (_, _, frames):
+            yield from frames
+
+    def refine(
+        self,
+        mesh_id: str,
+        n_to: int | None = None,
+        *,
+        start=None,
+        n_from: int | None = None,
+    ):
+        """Exactly lod(`n_to`) (None: the full mesh; clamped by the server) as a
+        `qem_core.stream.SplitStreamDecoder` (grid integers, faces, wedges), refined by the
+        stored split frames from `start` (a decoder holding a level, advanced in place and
+        returned) or from `n_from`. When the frames start below the level held (it lies
+        inside a frame) or nothing is held, the run's first level is fetched as msgpack."""
+        from qem_core.stream import SplitStreamDecoder
+
+        held = start.n_vertices if start is not None else n_from
+        with self._split_frames(mesh_id, held, n_to) as (served_from, served_to, frames):
+            decoder = start
+            if decoder is None or decoder.n_vertices != served_from:
+                level = self.lod(mesh_id, served_from, "msgpack")
+                decoder = SplitStreamDecoder.from_msgpack(level)
+            target = served_to if n_to is None else max(served_from, min(n_to, served_to))
+            for payload in frames:
+                decoder.feed(payload, stop=target)
+        return decoder
+
+    @contextmanager
+    def _split_frames(self, mesh_id: str, n1: int | None, n2: int | None):
+        """(X-Splits-From, X-Splits-To, iterator of frame payloads) of a /splits request,
+        its errors turned into this client's."""
         from qem_core import CorruptFileError
         from qem_core.stream import iter_frames  # numpy-heavy: only when streaming
 
@@ -328,7 +363,17 @@ class QemClient:
                 if response.is_error or response.status_code in _REDIRECTS:
                     response.read()
                     _raise_for_problem(response)
-                yield from iter_frames(response.iter_bytes())
+                try:
+                    served = (
+                        int(response.headers["X-Splits-From"]),
+                        int(response.headers["X-Splits-To"]),
+                    )
+                except (KeyError, ValueError):
+                    raise QemClientError(
+                        f"{self.base_url} sent splits without valid X-Splits-From and "
+                        "X-Splits-To headers; is it a qem-lod server?"
+                    ) from None
+                yield (*served, iter_frames(response.iter_bytes()))
         except httpx.TransportError as exc:
             raise self._transport_error(exc) from exc
         except CorruptFileError as exc:

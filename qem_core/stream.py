@@ -605,7 +605,10 @@ class SplitStreamDecoder:
             return None
         return self.wedge_grid.dequantise(self.quantised_values)
 
-    def feed(self, payload: bytes) -> None:
+    def feed(self, payload: bytes, stop: int | None = None) -> None:
+        """Refine by one frame (its payload, from ``iter_frames``). A key frame this
+        decoder holds already is skipped. ``stop``: refine no further than lod(stop),
+        even inside the frame (then the decoder is done: later frames do not follow)."""
         if len(payload) < 4 or zlib.crc32(payload[:-4]) != struct.unpack("<I", payload[-4:])[0]:
             raise CorruptFileError("split frame: the CRC-32 does not match (damaged frame)")
         try:
@@ -667,6 +670,8 @@ class SplitStreamDecoder:
                 # A key frame of splits this decoder holds (a stored run served from a
                 # frame boundary below the level asked for): skipped.
                 return
+            if stop is not None and stop <= n_from:
+                return  # nothing of this frame is wanted
             if n_from < self.n_vertices < n_to:
                 raise InvalidOptionsError(
                     f"the frame refines lod({n_from}) to lod({n_to}); this decoder holds "
@@ -707,18 +712,27 @@ class SplitStreamDecoder:
         quantised[:n_from] = self.quantised
         born = np.zeros((n_new, 3), np.int32)
         counts = np.zeros(k, np.int64)
+        partial = stop is not None and stop < n_to
+        if partial:
+            k = stop - n_from
         status, split_vertex, relabel_counts, relabel_faces = decode_connectivity(
             state.faces, faces_from, state.head, state.nxt, n_from, k, n_new, coded, quantised,
-            (1 << grid.bits) - 1, contexts, born, counts,
+            (1 << grid.bits) - 1, contexts, born, counts, partial,
         )  # fmt: skip
         if status:
             raise CorruptFileError(f"split frame: {_STATUS[status]}")
+        if partial:
+            n_to, n_new = stop, int(counts[:k].sum())
+            counts, born, quantised = counts[:k], born[:n_new], quantised[:stop]
+            state = state._replace(faces=state.faces[: faces_from + n_new])
         if wedges is not None:
             run = VertexSplits(
                 n_from, n_to, faces_from, split_vertex, np.zeros((k, 2, 3)), born, counts,
                 np.concatenate([[0], np.cumsum(relabel_counts)]), relabel_faces,
             )  # fmt: skip
             status = wedges.decode(wedge_fields[0], run)
+            if partial and status == LONG_DATA:
+                status = 0  # the frame's later splits hold the wedge fields left
             if status:
                 raise CorruptFileError(f"split frame: {_WEDGE_STATUS.get(status, _STATUS[status])}")
             self.face_wedges = wedges.face_wedges
@@ -726,7 +740,8 @@ class SplitStreamDecoder:
         self.faces = state.faces
         self.quantised = quantised
         self.grid = grid
-        self._contexts = contexts
+        # After a partial frame no frame follows: a continuing one is refused.
+        self._contexts = None if partial else contexts
         if wedge_fields is not None:
             self._wedge_contexts = wedge_fields[1]
 

@@ -1033,6 +1033,7 @@ def decode_connectivity(
     probs,
     born_faces,
     face_counts,
+    partial,
 ):
     """Inverse of ``encode_connectivity`` + ``code_splits``: decodes n_splits splits from
     the range-coded ``data`` (uint8) with the contexts ``probs`` (fresh, or as the
@@ -1046,7 +1047,9 @@ def decode_connectivity(
 
     Returns (status, split_vertex, relabel_counts, relabel_faces): status 0 when the
     splits used every byte of data, exactly n_new_faces faces and only indices in range,
-    else a status code (the state is then partly advanced and must be dropped).
+    else a status code (the state is then partly advanced and must be dropped). With
+    ``partial`` the n_splits splits are the first of a frame that holds more (a client
+    that stops inside a frame): bytes and faces may remain, n_new_faces is a bound.
     """
     k = n_splits
     dec = rc.start_decoder(data, 0)
@@ -1202,6 +1205,8 @@ def decode_connectivity(
             quantised[t, d] = a + e
     if dec[rc.BROKEN]:
         return SHORT_DATA, split_vertex, relabel_counts, relabel_faces[:n_relabel]
+    if partial:
+        return 0, split_vertex, relabel_counts, relabel_faces[:n_relabel]
     if dec[rc.POSITION] != data.shape[0]:
         return LONG_DATA, split_vertex, relabel_counts, relabel_faces[:n_relabel]
     if face != face_end:

@@ -38,13 +38,20 @@ class ServerProcess:
     """``python -m client.cli serve`` on 127.0.0.1 with its own data directory.
 
     log : everything the server printed so far (stdout and stderr).
+    command : another uvicorn program to run instead of ``qem serve`` (the benchmarks'
+    yardstick apps); it must print uvicorn's startup line.
     """
 
     def __init__(
-        self, data_dir: Path, env: dict[str, str] | None = None, args: tuple[str, ...] = ()
+        self,
+        data_dir: Path,
+        env: dict[str, str] | None = None,
+        args: tuple[str, ...] = (),
+        command: list[str] | None = None,
     ) -> None:
         self.data_dir = data_dir
         self.args = args
+        self.command = command
         self.env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
         self.env.pop("QEM_TOKEN", None)
         self.process: subprocess.Popen[str] | None = None
@@ -57,7 +64,7 @@ class ServerProcess:
         return "".join(self.log_lines)
 
     def start(self) -> ServerProcess:
-        command = [
+        command = self.command or [
             sys.executable,
             "-m",
             "client.cli",

@@ -15,8 +15,7 @@ import pytest
 import qem_core
 from client.http import QemHTTPError
 from qem_core import codecs
-from qem_core.quantise import Grid
-from qem_core.stream import SplitStreamDecoder, grid_for
+from qem_core.stream import grid_for
 
 from .conftest import shared_mesh
 
@@ -77,24 +76,23 @@ def test_lod_is_clamped_and_says_so(qem, bunny):
     assert qem.fetch_lod(bunny["id"], 1).n_vertices == bunny["min_vertices"]
 
 
-@pytest.mark.parametrize(("n1", "n2"), [(None, 2000), (1000, 20000), (20000, None)])
+@pytest.mark.parametrize(
+    ("n1", "n2"), [(None, 2000), (1000, 20000), (20000, None), (777, 12345), (3000, 3001)]
+)
 def test_splits_refine_lod_n1_into_lod_n2(qem, bunny, n1, n2):
-    # A viewer starts from the level as quantised msgpack: the split stream's grid.
-    start_bytes = qem.lod(bunny["id"], bunny["min_vertices"] if n1 is None else n1, "msgpack")
-    start_message = msgpack.unpackb(start_bytes)
-    start = codecs.decode_msgpack_mesh(start_bytes)
-    target = codecs.load_mesh(qem.lod(bunny["id"], n2, "ply"), format="ply")
+    # The stored frames covering [n1, n2] start at a frame boundary at or below n1 and end
+    # at or above n2; the client starts from the run's first level and stops at n2.
     payloads = list(qem.splits(bunny["id"], n1, n2))
-    assert len(payloads) > 1  # a big range comes in several frames
-    grid = Grid.over_box(start_message["bbox"][:3], start_message["bbox"][3:], 16)
-    decoder = SplitStreamDecoder(grid.quantise(start.vertices), start.faces)
-    for payload in payloads:
-        decoder.feed(payload)
-    assert decoder.vertices.shape == target.vertices.shape
-    assert np.array_equal(decoder.faces, target.faces)
-    # Positions agree within half a grid step (plus the PLY's float32 rounding).
-    tolerance = 0.5 * grid.step + 1e-7 * np.abs(target.vertices).max()
-    assert np.all(np.abs(decoder.vertices - target.vertices) <= tolerance)
+    assert len(payloads) >= (2 if n2 is None or n2 - (n1 or 0) > 5000 else 1)
+    start = qem.refine(bunny["id"], n1, n_from=n1) if n1 is not None else None
+    decoder = qem.refine(bunny["id"], n2, start=start)
+    target_bytes = qem.lod(bunny["id"], n2, "msgpack")
+    target = msgpack.unpackb(target_bytes)
+    assert decoder.n_vertices == target["vertex_count"]
+    assert np.array_equal(decoder.faces, codecs.decode_msgpack_mesh(target_bytes).faces)
+    # The grid integers are those of the server's msgpack level: exact.
+    positions = np.frombuffer(target["positions"], "<u2").reshape(-1, 3)
+    assert np.array_equal(decoder.quantised, positions)
 
 
 def test_empty_split_range(qem, bunny):

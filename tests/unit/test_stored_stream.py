@@ -28,7 +28,7 @@ def stored(pm):
     return encode_stored_stream(pm, threads=2)
 
 
-def _decode_run(pm, index: StreamIndex, data: bytes, i: int, j: int):
+def _decode_run(pm, index: StreamIndex, data: bytes, i: int, j: int, stop: int | None = None):
     """Decode frames [i, j) from lod(vertices[i]) as a client holding that level would."""
     n = index.vertices[i]
     vertices, faces = pm.lod(n)
@@ -36,9 +36,9 @@ def _decode_run(pm, index: StreamIndex, data: bytes, i: int, j: int):
     decoder = split_stream.SplitStreamDecoder(
         grid.quantise(vertices), faces, split_stream.quantised_wedges(pm, n), grid
     )
-    start, stop = index.byte_span(i, j)
-    for payload in split_stream.iter_frames([data[start:stop]]):
-        decoder.feed(payload)
+    start, stop_byte = index.byte_span(i, j)
+    for payload in split_stream.iter_frames([data[start:stop_byte]]):
+        decoder.feed(payload, stop=stop)
     return decoder
 
 
@@ -75,6 +75,13 @@ def test_a_stream_with_wedges_runs_from_any_frame():
     decoder = _decode_run(pm, index, data, 1, index.n_frames)
     assert_decoded_level(decoder, pm, pm.n_full)
     held = split_stream.quantised_wedges(pm, pm.n_full)
+    np.testing.assert_array_equal(decoder.face_wedges, held.face_wedges)
+    np.testing.assert_array_equal(decoder.quantised_values, held.values)
+    # Stopped inside a frame: exactly that level, wedges too.
+    stop = (index.vertices[1] + index.vertices[2]) // 2
+    decoder = _decode_run(pm, index, data, 1, 2, stop=stop)
+    assert_decoded_level(decoder, pm, stop)
+    held = split_stream.quantised_wedges(pm, stop)
     np.testing.assert_array_equal(decoder.face_wedges, held.face_wedges)
     np.testing.assert_array_equal(decoder.quantised_values, held.values)
 

@@ -23,6 +23,7 @@ from qem_core.stream import (
     range_code_fields,
     split_frame_symbols,
 )
+from tests.reference import assert_decoded_level
 from tests.tiny_meshes import (
     FIN,
     bumpy_grid,
@@ -244,8 +245,21 @@ def test_frames_out_of_order_or_for_another_level_are_refused(pm):
         _fresh_decoder(pm).feed(one_frame)
     decoder = _fresh_decoder(pm)
     decoder.feed(frames[0])
+    held = decoder.faces.copy()
+    decoder.feed(frames[0])  # the same key frame twice: held, so skipped
+    decoder.feed(one_frame)  # within the level held: skipped too
+    assert decoder.n_vertices == pm.n_base + 40 and np.array_equal(decoder.faces, held)
+    later = next(iter_frames(_frames(pm, pm.n_base + 50, pm.n_base + 60)))
     with pytest.raises(qem_core.CorruptFileError, match="refines"):
-        decoder.feed(frames[0])  # the same frame twice
+        decoder.feed(later)  # past the level held: a gap
+
+
+def test_a_decoder_stops_inside_a_frame_at_exactly_the_level_asked(pm):
+    (frame,) = iter_frames(_frames(pm, pm.n_base, pm.n_base + 40))
+    for stop in (pm.n_base, pm.n_base + 1, pm.n_base + 17, pm.n_base + 39, pm.n_base + 40):
+        decoder = _fresh_decoder(pm)
+        decoder.feed(frame, stop=stop)
+        assert_decoded_level(decoder, pm, stop)
 
 
 def _sealed(body: bytes) -> bytes:

@@ -9,6 +9,7 @@
     qem get ID -n N -o OUT         fetch the mesh at N vertices (format from OUT's suffix)
     qem ls                         list the server's meshes
     qem rm ID...                   delete meshes
+    qem export ID|FILE.qpm DIR     a static export: base, stream, frame index, manifest, viewer
 
 Commands against a server take ``--server URL`` (default $QEM_SERVER, else
 http://127.0.0.1:8000) and read a write token from $QEM_TOKEN; ``--json`` prints
@@ -47,6 +48,7 @@ from .console import (
     print_json,
     write_atomically,
 )
+from .export import add_export
 from .http import (
     DEFAULT_SERVER,
     QemClient,
@@ -364,6 +366,7 @@ SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
     add_get,
     add_ls,
     add_rm,
+    lambda subparsers: add_export(subparsers, _remote_parent),
 ]
 
 

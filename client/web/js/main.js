@@ -4,10 +4,13 @@
 // Selecting a mesh (the page's hash is #mesh=ID) fetches the base mesh as msgpack, then
 // streams /splits from the base to the full count into buffers allocated once
 // (refine.js); the slider moves the level both ways from the splits already held.
+// With ?src=URL-of-manifest the page shows a static export instead (static_source.js):
+// no server, the stream fetched from any static host by Range requests.
 
 import { getMesh, listMeshes, lodError, lodUrl, splitsUrl, uploadMesh } from "./api.js";
 import { ProgressiveLevels, decodeBaseMesh, problemError, streamSplits } from "./refine.js";
 import { MeshScene } from "./scene.js";
+import { openExport, streamExport } from "./static_source.js";
 
 const $ = (id) => document.getElementById(id);
 const LIST_POLL_MS = 2000; // while some mesh is queued or building
@@ -198,18 +201,67 @@ function currentId() {
 function select(id, { auto = false } = {}) {
   if (!auto) autoPick = false;
   if (currentId() === id) {
-    if (!view || view.id !== id) load(id);
+    if (!view || view.id !== id) load(serverSource(id));
     return;
   }
   location.hash = `mesh=${id}`; // hashchange loads it
 }
 
-async function load(id) {
+/** A mesh on the server: polled until built, its base level and /splits from it. */
+function serverSource(id) {
+  return {
+    id,
+    async open(signal) {
+      let info = await getMesh(id);
+      while (info.status === "queued" || info.status === "building") {
+        showMessage(`${info.name} is ${info.status} (${Math.round(100 * info.progress)}%)…`);
+        await sleep(BUILD_POLL_MS, signal);
+        info = await getMesh(id);
+      }
+      if (info.status === "failed") throw new Error(`${info.name} could not be built: ${info.error}`);
+      showMessage(`loading ${info.name}…`);
+      const response = await fetch(lodUrl(id, info.min_vertices), { signal });
+      if (!response.ok) throw await problemError(response);
+      const bytes = new Uint8Array(await response.arrayBuffer());
+      const error = Number(response.headers.get("X-Lod-Error"));
+      return { info, base: decodeBaseMesh(bytes), baseBytes: bytes.length, baseError: error };
+    },
+    stream: (levels, options) =>
+      streamSplits(splitsUrl(id, levels.received, levels.nFull), levels, options),
+    levelError: (n) => lodError(id, n),
+  };
+}
+
+/** A static export: its manifest, frame index and base mesh, its stream by Range. */
+function exportSource(src) {
+  let opened = null;
+  return {
+    id: src,
+    async open(signal) {
+      showMessage(`loading ${src}…`);
+      opened = await openExport(src, { signal });
+      const { manifest } = opened;
+      const info = {
+        name: manifest.name,
+        vertices: manifest.vertices,
+        faces: manifest.faces,
+        min_vertices: manifest.minVertices,
+      };
+      return { info, base: opened.base, baseBytes: opened.baseBytes, baseError: undefined };
+    },
+    stream: (levels, options) => streamExport(opened, levels, options),
+    levelError: null, // the export holds no error curve
+  };
+}
+
+async function load(source) {
   view?.abort.abort();
   const abort = new AbortController();
   const signal = abort.signal;
+  const id = source.id;
   view = {
     id,
+    source,
     abort,
     info: null,
     levels: null,
@@ -231,21 +283,10 @@ async function load(id) {
   $("controls").hidden = true;
   scene?.clear();
   try {
-    let info = await getMesh(id);
-    while (info.status === "queued" || info.status === "building") {
-      showMessage(`${info.name} is ${info.status} (${Math.round(100 * info.progress)}%)…`);
-      await sleep(BUILD_POLL_MS, signal);
-      info = await getMesh(id);
-    }
-    if (info.status === "failed") throw new Error(`${info.name} could not be built: ${info.error}`);
+    const { info, base, baseBytes, baseError } = await source.open(signal);
     current.info = info;
-    showMessage(`loading ${info.name}…`);
-    const response = await fetch(lodUrl(id, info.min_vertices), { signal });
-    if (!response.ok) throw await problemError(response);
-    const bytes = new Uint8Array(await response.arrayBuffer());
-    current.baseBytes = bytes.length;
-    const base = decodeBaseMesh(bytes);
-    current.errors.set(base.nVertices, Number(response.headers.get("X-Lod-Error")));
+    current.baseBytes = baseBytes;
+    if (baseError !== undefined) current.errors.set(base.nVertices, baseError);
     const levels = new ProgressiveLevels(base, info.vertices, info.faces);
     current.levels = levels;
     if (!scene) throw new Error("this browser has no WebGL: the mesh cannot be drawn");
@@ -257,7 +298,7 @@ async function load(id) {
     $("controls").hidden = false;
     updateStats();
     current.streaming = true;
-    await streamSplits(splitsUrl(id, levels.nBase, levels.nFull), levels, {
+    await source.stream(levels, {
       signal,
       onBytes: (n) => {
         current.splitBytes = n;
@@ -350,7 +391,9 @@ function updateStats() {
   );
   // Not while streaming: the level moves on anyway, and each lookup makes the server
   // build a level beside the stream it is sending.
-  if (error === undefined && !current.streaming) scheduleErrorLookup(current);
+  if (error === undefined && !current.streaming && current.source.levelError) {
+    scheduleErrorLookup(current);
+  }
   set(
     "stat-time",
     `base ${formatMs(current.baseShownMs)} · full ${current.failure ? "–" : formatMs(current.fullShownMs)}`,
@@ -371,7 +414,7 @@ function scheduleErrorLookup(current) {
     const n = current.levels.level;
     if (current !== view || current.errors.has(n)) return;
     try {
-      const answer = await lodError(current.id, n);
+      const answer = await current.source.levelError(n);
       current.errors.set(answer.n, answer.error);
     } catch {
       return; // the figure stays "…"; the mesh itself is unaffected
@@ -468,22 +511,30 @@ function start() {
       true,
     );
   }
-  setUpUploads();
-  $("refresh").addEventListener("click", refreshList);
   const slider = $("lod-slider");
   slider.addEventListener("input", () => {
     if (view?.levels) setWant(sliderToCount(view.levels, Number(slider.value)));
   });
   $("lod-number").addEventListener("change", (event) => setWant(Number(event.target.value)));
+  const src = new URLSearchParams(location.search).get("src");
+  if (src) {
+    // A static export: no server to list meshes from or upload to.
+    $("upload").hidden = true;
+    $("meshes").hidden = true;
+    load(exportSource(src));
+    return;
+  }
+  setUpUploads();
+  $("refresh").addEventListener("click", refreshList);
   window.addEventListener("hashchange", () => {
     const id = currentId();
-    if (id && id !== view?.id) load(id);
+    if (id && id !== view?.id) load(serverSource(id));
     renderList();
   });
   const id = currentId();
   if (id) {
     autoPick = false;
-    load(id);
+    load(serverSource(id));
   }
   refreshList();
 }

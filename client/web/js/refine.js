@@ -612,12 +612,16 @@ export class ProgressiveLevels {
     return this.facesAt(this.level);
   }
 
-  /** Store a decoded frame's splits (they must continue the received ones); the new faces
-   * go into the index buffer as born. Does not move the level. A frame refused half-way
+  /** Store a decoded frame's splits (they must continue the received ones, or be held
+   * already: then skipped); the new faces go into the index buffer as born. Does not
+   * move the level. A frame refused half-way
    * leaves the decoder state unusable: later frames are refused too. */
   addFrame(frame) {
     if (this.broken) fail(`an earlier frame was refused: ${this.broken}`);
     const { nFrom, nTo, facesFrom } = frame;
+    // A key frame of splits held already (a stored run served from the frame boundary
+    // at or below the level asked for): skipped.
+    if (!frame.continues && nFrom < nTo && nTo <= this.received) return;
     if (nFrom !== this.received || facesFrom !== this.facesAt(this.received)) {
       fail(
         `frame refines ${nFrom} vertices / ${facesFrom} faces, the viewer holds ` +
@@ -943,26 +947,38 @@ export class ProgressiveLevels {
 export async function streamSplits(url, levels, { onFrame, onBytes, signal } = {}) {
   const response = await fetch(url, { signal });
   if (!response.ok) throw await problemError(response);
+  let bytes = 0;
+  await readFrames(response, {
+    onChunk: (n) => onBytes?.((bytes += n)),
+    onPayload: (payload) => {
+      levels.addFrame(decodeFrame(payload));
+      onFrame?.(bytes);
+    },
+  });
+  return bytes;
+}
+
+/**
+ * Read a response body to its end, cutting it into frame payloads as chunks arrive:
+ * onChunk(chunkLength) for each chunk, then onPayload(payload) for each frame it
+ * completes. Raises (and cancels the body) if a callback does, or if the body ends
+ * inside a frame.
+ */
+export async function readFrames(response, { onChunk, onPayload }) {
   const reader = response.body.getReader();
   const cutter = new FrameCutter();
-  let bytes = 0;
   try {
     for (;;) {
       const { done, value } = await reader.read();
       if (done) break;
-      bytes += value.length;
-      onBytes?.(bytes);
-      for (const payload of cutter.push(value)) {
-        levels.addFrame(decodeFrame(payload));
-        onFrame?.(bytes);
-      }
+      onChunk(value.length);
+      for (const payload of cutter.push(value)) onPayload(payload);
     }
     cutter.finish();
   } catch (error) {
     reader.cancel().catch(() => {});
     throw error;
   }
-  return bytes;
 }
 
 /** An Error carrying an RFC 9457 problem (or the status line when the body is not one). */

@@ -22,6 +22,7 @@ from starlette.concurrency import run_in_threadpool
 from . import __version__
 from .head_requests import HeadAsGet
 from .jobs import JobQueue, open_jobs
+from .memory_answers import MemoryAnswers
 from .problems import install_problem_handlers
 from .read_path import ReadPath
 from .routes import health, meshes
@@ -93,6 +94,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         expose_headers=_EXPOSED_HEADERS,
         max_age=86400,
     )
+    app.add_middleware(MemoryAnswers)  # outermost: plain GETs of what is in memory
     app.include_router(health.router)
     app.include_router(meshes.router)
     mount_viewer(app, settings.web_dir)

@@ -108,7 +108,7 @@ async def _find_ready(reads: ReadPath, mesh_id: str) -> MeshRecord:
     return record
 
 
-def _clamp(record: MeshRecord, n: int | None) -> int:
+def clamp_count(record: MeshRecord, n: int | None) -> int:
     assert record.n_base is not None and record.n_vertices is not None
     if n is None:
         return record.n_vertices
@@ -123,6 +123,7 @@ def _build_tag(qpm_key: str | None) -> str:
 
 def _etag(record: MeshRecord, *parts: object) -> str:
     return '"' + "-".join((_build_tag(record.qpm_key), *map(str, parts))) + '"'
+
 
 def _matches(if_none_match: str | None, etag: str) -> bool:
     """If-None-Match uses the weak comparison (RFC 9110, 13.1.2)."""
@@ -186,8 +187,12 @@ async def upload_mesh(
     return UploadAccepted(id=record.id, url=url)
 
 
-@router.get("", response_model=MeshList, summary="List meshes with their status",
-            dependencies=[KnownQueryOnly])
+@router.get(
+    "",
+    response_model=MeshList,
+    summary="List meshes with their status",
+    dependencies=[KnownQueryOnly],
+)
 def list_meshes(storage: StorageDep) -> MeshList:
     return MeshList(meshes=[mesh_info(record) for record in storage.metadata.records()])
 
@@ -233,26 +238,29 @@ async def get_lod(
     if_none_match: Annotated[str | None, Header()] = None,
 ) -> Response:
     record = await _find_ready(reads, mesh_id)
-    n = _clamp(record, vertices)
+    n = clamp_count(record, vertices)
     etag = _etag(record, "lod", n, format, split_stream.STREAM_VERSION)
     if _matches(if_none_match, etag):
         return _not_modified(etag, {"X-Lod-Vertices": str(n)})
     lod = reads.levels.cached_lod(record, n, format)
     if lod is None:
         lod = await run_in_threadpool(reads.levels.lod, record, n, format)
-    stem = Path(record.name).stem or record.id
     return Response(
-        lod.content,
-        media_type=codecs.MEDIA_TYPES[format],
-        headers={
-            "ETag": etag,
-            "Cache-Control": IMMUTABLE,
-            "X-Lod-Vertices": str(lod.n_vertices),
-            "X-Lod-Faces": str(lod.n_faces),
-            "X-Lod-Error": repr(lod.error),
-            "Content-Disposition": f'inline; filename="{_header_safe(stem)}-{n}.{format}"',
-        },
+        lod.content, media_type=codecs.MEDIA_TYPES[format], headers=lod_headers(record, n, lod)
     )
+
+
+def lod_headers(record: MeshRecord, n: int, lod) -> dict[str, str]:
+    """The headers of a level's 200 answer (the route's and the in-memory path's)."""
+    stem = Path(record.name).stem or record.id
+    return {
+        "ETag": _etag(record, "lod", n, lod.format, split_stream.STREAM_VERSION),
+        "Cache-Control": IMMUTABLE,
+        "X-Lod-Vertices": str(lod.n_vertices),
+        "X-Lod-Faces": str(lod.n_faces),
+        "X-Lod-Error": repr(lod.error),
+        "Content-Disposition": f'inline; filename="{_header_safe(stem)}-{n}.{lod.format}"',
+    }
 
 
 @router.get(
@@ -296,8 +304,8 @@ async def get_splits(
     exactly that."""
     record = await _find_ready(reads, mesh_id)
     assert record.n_base is not None
-    n1 = _clamp(record, record.n_base if from_ is None else from_)
-    n2 = _clamp(record, to)
+    n1 = clamp_count(record, record.n_base if from_ is None else from_)
+    n2 = clamp_count(record, to)
     if n1 > n2:
         raise Problem(
             "invalid-request",
@@ -307,30 +315,36 @@ async def get_splits(
     stream = reads.streams.cached(record)
     if stream is None:
         stream = await run_in_threadpool(reads.streams.get, record)
-    index = stream.index
-    first, last = index.covering(n1, n2)
-    if first == last:
-        served_from = served_to = n1
-    else:
-        served_from, served_to = index.vertices[first], index.vertices[last]
-    etag = _etag(record, "splits", split_stream.STREAM_VERSION, served_from, served_to)
-    headers = {
-        "ETag": etag,
-        "Cache-Control": IMMUTABLE,
-        "Accept-Ranges": "bytes",
-        "X-Splits-From": str(served_from),
-        "X-Splits-To": str(served_to),
-    }
+    headers, body = splits_answer(record, stream, n1, n2)
+    etag = headers["ETag"]
     if _matches(if_none_match, etag):
         return _not_modified(etag, headers)
-    start, stop = index.byte_span(first, last)
-    body = stream.data if stop - start == len(stream.data) else stream.data[start:stop]
     part = byte_range(range_, len(body)) if if_range_holds(if_range, etag) else None
     if part is None:
         return Response(body, media_type=STREAM_MEDIA_TYPE, headers=headers)
     low, high = part
     headers["Content-Range"] = f"bytes {low}-{high - 1}/{len(body)}"
     return Response(body[low:high], 206, media_type=STREAM_MEDIA_TYPE, headers=headers)
+
+
+def splits_answer(record: MeshRecord, stream, n1: int, n2: int) -> tuple[dict[str, str], bytes]:
+    """The headers and bytes of the stored run covering n1..n2 (clamped, n1 <= n2)."""
+    index = stream.index
+    first, last = index.covering(n1, n2)
+    if first == last:
+        served_from = served_to = n1
+    else:
+        served_from, served_to = index.vertices[first], index.vertices[last]
+    headers = {
+        "ETag": _etag(record, "splits", split_stream.STREAM_VERSION, served_from, served_to),
+        "Cache-Control": IMMUTABLE,
+        "Accept-Ranges": "bytes",
+        "X-Splits-From": str(served_from),
+        "X-Splits-To": str(served_to),
+    }
+    start, stop = index.byte_span(first, last)
+    body = stream.data if stop - start == len(stream.data) else stream.data[start:stop]
+    return headers, body
 
 
 @router.get(

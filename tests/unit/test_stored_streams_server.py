@@ -244,3 +244,32 @@ def test_a_restart_keeps_the_stored_stream(tmp_path):
         assert _blob(client, info, ".splits").read_bytes() == data
         assert client.get(f"/v1/meshes/{info['id']}/splits").content == data
         assert client.app.state.reads.streams.made == 0
+
+
+def test_answers_from_memory_equal_the_routes_answers(client, mesh):
+    # The plain GET is answered from memory (server.memory_answers); a non-matching
+    # If-None-Match sends the same request through the routes: the same answer.
+    base = f"/v1/meshes/{mesh['id']}"
+    requests = [
+        ("/lod", {"vertices": 1000, "format": "ply"}),
+        ("/lod", {"vertices": 10**9, "format": "msgpack"}),
+        ("/lod", {}),
+        ("/splits", {}),
+        ("/splits", {"from": 700, "to": 1900}),
+        ("/splits", {"from": 900, "to": 900}),
+    ]
+    for path, params in requests:
+        client.get(base + path, params=params)  # now in memory
+        plain = client.get(base + path, params=params)
+        routed = client.get(base + path, params=params, headers={"If-None-Match": '"x"'})
+        assert plain.status_code == routed.status_code == 200
+        assert plain.content == routed.content
+        drop = {"date", "server"}
+        assert {k: v for k, v in plain.headers.items() if k not in drop} == {
+            k: v for k, v in routed.headers.items() if k not in drop
+        }
+    # What the memory path does not take still gets the routes' problems.
+    for path, query in (("/lod", "vertices=10&vertices=20"), ("/lod", "vertex=5"),
+                        ("/lod", "vertices=0"), ("/splits", "from=900&to=800"),
+                        ("/lod", "format=fbx")):  # fmt: skip
+        assert_problem(client.get(f"{base}{path}?{query}"), 422)

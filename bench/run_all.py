@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import sys
 
-from . import build_speed, lod_speed, service, simplify_quality, stream_size
+from . import build_speed, lod_speed, service, simplify_quality, stream_serving, stream_size
 
 
 def main() -> int:
@@ -24,6 +24,7 @@ def main() -> int:
         lod_speed.main([]),
         stream_size.main([]),
         service.main([]),
+        stream_serving.main([]),
     ]
     return max(statuses)
 

@@ -277,7 +277,7 @@ def write_report(path: Path, entry: dict[str, Any]) -> None:
     path.write_text("\n".join(lines))
 
 
-def main(argv: list[str] | None = None) -> None:
+def main(argv: list[str] | None = None) -> int:
     parser = bench_parser("python -m bench.stream_serving", __doc__)
     parser.add_argument("--mesh", default="dragon.ply")
     parser.add_argument("--runs", type=int, default=3)
@@ -290,7 +290,8 @@ def main(argv: list[str] | None = None) -> None:
     write_json(args.out_dir / "stream-serving.json", entry)
     write_report(args.out_dir / "stream-serving.md", entry)
     progress(f"wrote {args.out_dir / 'stream-serving.md'}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

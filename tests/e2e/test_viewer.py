@@ -39,7 +39,9 @@ import pytest
 
 import qem_core
 from qem_core import codecs
+from qem_core.levels import encode_level
 from qem_core.progressive import ProgressiveMesh
+from qem_core.stored_stream import encode_stored_stream
 from qem_core.stream import (
     SplitStreamDecoder,
     encode_split_frames,
@@ -210,20 +212,22 @@ console.log(JSON.stringify(out));
 
 
 def run_refine_js(
-    tmp_path: Path, pm: ProgressiveMesh, visit: list[int], stream: bytes | None = None
+    tmp_path: Path,
+    pm: ProgressiveMesh,
+    visit: list[int],
+    stream: bytes | None = None,
+    start: int | None = None,
 ) -> dict:
     """Levels visited by refine.js (level -> level, faces, digest), after it read
-    `stream` (default: pm's whole split stream, two splits a frame); or {"error": ...,
-    "held": vertex count received} if it refused the stream."""
+    `stream` (default: pm's whole split stream, two splits a frame) from lod(`start`)
+    (default: the base); or {"error": ..., "held": vertex count received} if it refused
+    the stream."""
     node = shutil.which("node")
     if node is None:
         pytest.fail("node is missing: it is needed for the viewer's packages (npm ci)")
     require_web_packages()
-    vertices, faces = pm.lod(pm.n_base)
-    base = codecs.encode_mesh(
-        vertices, faces, "msgpack", quantize_bits=16, grid_box=pm.position_bounds,
-        wedges=quantised_wedges(pm, pm.n_base),
-    )  # fmt: skip
+    start = pm.n_base if start is None else start
+    base = encode_level(pm, start, "msgpack").content
     (tmp_path / "base.msgpack").write_bytes(base)
     if stream is None:
         stream = b"".join(encode_split_frames(pm, pm.n_base, pm.n_full, splits_per_frame=2))
@@ -319,6 +323,22 @@ def test_refine_js_decodes_built_meshes_exactly(tmp_path, mesh):
         if splits_per_frame is None:
             stream = b"".join(encode_split_frames(pm, pm.n_base, pm.n_full))
         levels = run_refine_js(tmp_path, pm, visit, stream=stream)
+        for n in visit:
+            assert levels[n] == {"level": n, "faces": pm.n_faces(n), "digest": pm_digest(pm, n)}
+
+
+def test_refine_js_reaches_exactly_lod_to_from_stored_runs(tmp_path):
+    """Runs of stored key frames from their first level, as /splits serves them for any
+    from..to, each sent twice (the held frames skipped): the level asked for, exactly."""
+    pm = qem_core.build(*icosphere(4))
+    data, index = encode_stored_stream(pm)
+    assert index.n_frames >= 3
+    for n1, n2 in ((pm.n_base, pm.n_full), (700, 1900), (1600, 1601), (30, 2561)):
+        i, j = index.covering(n1, n2)
+        start, stop = index.byte_span(i, j)
+        run = data[start:stop]
+        visit = [n2, index.vertices[j], n1, n2]
+        levels = run_refine_js(tmp_path, pm, visit, stream=run + run, start=index.vertices[i])
         for n in visit:
             assert levels[n] == {"level": n, "faces": pm.n_faces(n), "digest": pm_digest(pm, n)}
 

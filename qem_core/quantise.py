@@ -40,6 +40,12 @@ class Grid(NamedTuple):
         _check_grid(values[:3], values[3:], (1 << bits) - 1)
         return cls(values[:3], values[3:], bits)
 
+    def check(self) -> Grid:
+        """This grid, or ValueError when it is no grid (as `from_values`): a box read
+        from a file can span more than float64 steps over (its far corner at infinity)."""
+        _check_grid(self.origin, self.step, (1 << self.bits) - 1)
+        return self
+
     @property
     def top(self) -> np.ndarray:
         """The far corner of the box, origin + (2^bits - 1) * step."""
@@ -150,7 +156,9 @@ def _steps(low: np.ndarray, high: np.ndarray, top) -> np.ndarray:
     high = np.asarray(high, np.float64)
     # At least the smallest normal float64: a box a few subnormals across would give a
     # step of 0 (positions then quantised to NaN), where this puts them all at its origin.
-    return np.maximum(np.where(high > low, high - low, 1.0) / top, np.finfo(np.float64).tiny)
+    with np.errstate(over="ignore"):  # a span past float64 gives inf: `check` refuses it
+        span = np.where(high > low, high - low, 1.0)
+    return np.maximum(span / top, np.finfo(np.float64).tiny)
 
 
 def _quantise(values, origin: np.ndarray, step: np.ndarray, top) -> np.ndarray:

@@ -70,7 +70,7 @@ from ._kernels.wedge_coding import (
     decode_wedge_fields,
     wedge_context_slots,
 )
-from .codecs.msgpack_mesh import read_msgpack, read_msgpack_wedges
+from .codecs.msgpack_mesh import read_msgpack, read_msgpack_grid, read_msgpack_wedges
 from .errors import CorruptFileError, InvalidMeshError, InvalidOptionsError
 from .progressive import ProgressiveMesh, VertexSplits
 from .quantise import AttributeGrid, Grid, QuantisedWedges
@@ -580,12 +580,10 @@ class SplitStreamDecoder:
         grid of the level's ``bbox`` and ``position_bits`` (a stream on another grid is
         refused)."""
         mesh = read_msgpack(data)
-        message = msgpack.unpackb(data)
-        if message.get("position_encoding") != "u16":
+        grid = read_msgpack_grid(data)  # checked: a finite box, min <= max
+        if grid is None:
             raise InvalidOptionsError("the level's positions are not grid integers ('u16')")
-        quantised = np.frombuffer(message["positions"], "<u2").reshape(-1, 3)
-        box = np.asarray(message["bbox"], np.float64)
-        grid = Grid.over_box(box[:3], box[3:], message["position_bits"])
+        quantised = np.frombuffer(msgpack.unpackb(data)["positions"], "<u2").reshape(-1, 3)
         return cls(quantised, mesh.faces, read_msgpack_wedges(data), grid)
 
     @property

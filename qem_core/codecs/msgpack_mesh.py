@@ -47,6 +47,7 @@ from ._images import image_media_type
 
 __all__ = [
     "read_msgpack",
+    "read_msgpack_grid",
     "read_msgpack_wedges",
     "write_msgpack",
     "is_msgpack_mesh",
@@ -140,6 +141,41 @@ def write_msgpack(
     return msgpack.packb(message, use_bin_type=True)
 
 
+def read_msgpack_grid(data: bytes) -> Grid | None:
+    """The position grid of a msgpack mesh with "u16" positions (None for "f32"): the
+    grid a split stream refining the level must use. Raises MeshFormatError as
+    `read_msgpack` does."""
+    return _position_grid(_message(data))
+
+
+def _position_grid(message: dict) -> Grid | None:
+    """The grid of "u16" positions, None for "f32", after checking ``bbox`` (a box whose
+    min passes its max on an axis, or whose span float64 cannot step over, would put the
+    positions elsewhere or at infinity)."""
+    bbox = message.get("bbox")
+    if (
+        not isinstance(bbox, list)
+        or len(bbox) != 6
+        or not all((_is_integer(x) or isinstance(x, float)) and math.isfinite(x) for x in bbox)
+    ):
+        raise MeshFormatError("'bbox' must be 6 finite numbers: min x y z, max x y z")
+    low, high = np.asarray(bbox[:3], np.float64), np.asarray(bbox[3:], np.float64)
+    if (low > high).any():
+        raise MeshFormatError(f"'bbox' {bbox}: a min is above its max (min x y z, max x y z)")
+    encoding = message.get("position_encoding")
+    if encoding == "f32":
+        return None
+    if encoding != "u16":
+        raise MeshFormatError(f"'position_encoding' must be 'f32' or 'u16', got {encoding!r}")
+    bits = message.get("position_bits")
+    if not (_is_integer(bits) and bits in range(1, 17)):
+        raise MeshFormatError(f"'position_bits' must be 1..16, got {bits!r}")
+    try:
+        return Grid.over_box(low, high, bits).check()
+    except ValueError:
+        raise MeshFormatError(f"'bbox' {bbox} spans more than float64 can hold") from None
+
+
 def read_msgpack_wedges(data: bytes) -> QuantisedWedges | None:
     """The ``wedges`` entry of a msgpack mesh (None if it has none). Raises
     MeshFormatError naming the bad field; the mesh itself is read by `read_msgpack`."""
@@ -171,28 +207,16 @@ def read_msgpack(data: bytes) -> Mesh:
     message = _message(data)
     n_vertices = _count(message, "vertex_count")
     n_faces = _count(message, "face_count")
-    bbox = message.get("bbox")
-    if (
-        not isinstance(bbox, list)
-        or len(bbox) != 6
-        or not all((_is_integer(x) or isinstance(x, float)) and math.isfinite(x) for x in bbox)
-    ):
-        raise MeshFormatError("'bbox' must be 6 finite numbers: min x y z, max x y z")
-    encoding = message.get("position_encoding")
-    if encoding == "f32":
+    grid = _position_grid(message)
+    if grid is None:
         vertices = _array(message, "positions", "<f4", n_vertices * 3).astype(np.float64)
-    elif encoding == "u16":
-        bits = message.get("position_bits")
-        if not (_is_integer(bits) and bits in range(1, 17)):
-            raise MeshFormatError(f"'position_bits' must be 1..16, got {bits!r}")
-        quantised = _array(message, "positions", "<u2", n_vertices * 3).reshape(-1, 3)
-        if quantised.size and int(quantised.max()) >= 1 << bits:
-            raise MeshFormatError(
-                f"'positions' hold {int(quantised.max())}, past the {bits}-bit grid"
-            )
-        vertices = Grid.over_box(bbox[:3], bbox[3:], bits).dequantise(quantised)
     else:
-        raise MeshFormatError(f"'position_encoding' must be 'f32' or 'u16', got {encoding!r}")
+        quantised = _array(message, "positions", "<u2", n_vertices * 3).reshape(-1, 3)
+        if quantised.size and int(quantised.max()) >= 1 << grid.bits:
+            raise MeshFormatError(
+                f"'positions' hold {int(quantised.max())}, past the {grid.bits}-bit grid"
+            )
+        vertices = grid.dequantise(quantised)
     index_dtype = _index_dtype(message, "index_type")
     faces = _array(message, "indices", index_dtype, n_faces * 3).astype(np.int64)
     if faces.size and int(faces.max()) >= n_vertices:

@@ -226,6 +226,25 @@ def test_both_decoders_refuse_a_base_mesh_they_could_not_refine(tmp_path, pm):
             SplitStreamDecoder.from_msgpack(blob)
 
 
+def test_both_decoders_refuse_a_base_mesh_whose_box_is_no_grid(tmp_path, pm):
+    """Fuzz finding r06: a bbox spanning more than float64 steps over (inf positions) or
+    with a min above its max (every position moved) was taken as the grid."""
+    served = msgpack.unpackb(
+        codecs.encode_mesh(*pm.lod(pm.n_base), "msgpack", quantize_bits=16,
+                           grid_box=pm.position_bounds)
+    )  # fmt: skip
+    boxes = [[-1e308, 0, 0, 1e308, 1, 1], [1, 1, 1, 0, 0, 0]]
+    blobs = [msgpack.packb({**served, "bbox": box}) for box in boxes]
+    assert _base_mesh_errors(tmp_path, blobs) == [
+        "WireFormatError: base mesh: 'bbox' [-1e+308,0,0,1e+308,1,1] spans more than "
+        "float64 can hold",
+        "WireFormatError: base mesh: 'bbox' [1,1,1,0,0,0]: a min is above its max",
+    ]
+    for blob, python in zip(blobs, ["spans more than float64", "min is above"], strict=True):
+        with pytest.raises(qem_core.MeshFormatError, match=python):
+            SplitStreamDecoder.from_msgpack(blob)
+
+
 def test_both_decoders_refuse_a_frame_past_the_work_limit(tmp_path):
     """A frame whose splits split vertex 0 again and again, each adding a face to it:
     4.5 million corners to walk (the encoder's planner never makes such a frame), refused

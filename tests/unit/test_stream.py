@@ -576,6 +576,20 @@ def test_a_served_level_of_the_wrong_shape_is_refused_clearly(pm, fields):
         SplitStreamDecoder.from_msgpack(_served(pm, pm.n_base, **fields))
 
 
+@pytest.mark.parametrize(("bbox", "match"), [
+    ([-1e308, 0, 0, 1e308, 1, 1], "spans more than float64"),  # inf steps, inf positions
+    ([1, 1, 1, 0, 0, 0], "min is above its max"),  # every position moved off the mesh
+])  # fmt: skip
+def test_a_served_level_whose_box_is_no_grid_is_refused(pm, bbox, match):
+    """Fuzz finding r06: the grid of a level's bbox was taken unchecked, so a decoder held
+    inf positions or moved every vertex; load_mesh took the reversed box too."""
+    served = _served(pm, pm.n_base, bbox=bbox)
+    with pytest.raises(qem_core.MeshFormatError, match=match):
+        SplitStreamDecoder.from_msgpack(served)
+    with pytest.raises(qem_core.MeshFormatError, match=match):
+        qem_core.load_mesh(served, format="msgpack")
+
+
 def test_a_start_that_frames_could_not_refine_is_refused(pm):
     """A start whose faces name vertices it does not hold (or that come later), or whose
     integers lie off the grid, is refused: frames would refine it into a broken mesh."""

@@ -167,9 +167,17 @@ export function decodeBaseMesh(bytes) {
   if (!Array.isArray(bbox) || bbox.length !== 6 || !bbox.every(Number.isFinite)) {
     fail("base mesh: 'bbox' must be 6 finite numbers");
   }
+  if ([0, 1, 2].some((d) => bbox[d] > bbox[3 + d])) {
+    fail(`base mesh: 'bbox' [${bbox}]: a min is above its max`);
+  }
   const bits = message.position_bits;
   if (!Number.isInteger(bits) || bits < 1 || bits > 16) {
     fail(`base mesh: 'position_bits' must be 1..16, got ${bits}`);
+  }
+  // As quantise.Grid.check: a box float64 cannot step over would put vertices at infinity.
+  const grid = gridOverBox(bbox, bits);
+  if (![0, 1, 2].every((d) => Number.isFinite(grid.origin[d] + (2 ** bits - 1) * grid.step[d]))) {
+    fail(`base mesh: 'bbox' [${bbox}] spans more than float64 can hold`);
   }
   const texture = message.texture instanceof Uint8Array ? message.texture : null;
   // As qem_core.codecs.msgpack_mesh.read_msgpack: splits refine only a level whose faces

@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import qem_core
+from qem_core import codecs
 
 from .console import (
     EXIT_OK,
@@ -104,9 +105,14 @@ def _write_level(pm: qem_core.ProgressiveMesh, n: int, output: str, fmt: str) ->
         raise CliError(f"-n {n}: the vertex count must be at least 1", EXIT_USAGE)
     level = pm.lod_mesh(n)  # with the appearance attributes, if any
     vertices, faces = level.vertices, level.faces
+    # A textured OBJ names its .mtl and image, written beside it (not beside stdout).
+    library = Path(output).stem if fmt == "obj" and level.texture and output != "-" else None
     content = qem_core.encode_mesh(vertices, faces, fmt, level.vertex_attributes,
-                                   level.texture, level.corner_uvs)
+                                   level.texture, level.corner_uvs, material_library=library)
     write_atomically(output, content)
+    if library is not None:
+        for name, companion in codecs.obj_companions(library, level.texture).items():
+            write_atomically(str(Path(output).with_name(name)), companion)
     return {
         "path": output,
         "format": fmt,

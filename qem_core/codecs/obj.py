@@ -6,8 +6,16 @@ Reads ``v x y z`` (a 6-number ``v x y z r g b`` on every line gives "color"), ``
 (`_polygons.py`).
 Texture coordinates go to `Mesh.corner_uvs` (one per face corner, as OBJ stores them);
 when every vertex has a single UV (no seams) they are also the "uv" vertex attribute,
-and the same rule turns ``vn`` into the "normal" attribute. Everything else (``mtllib``,
-``usemtl``, ``o``, ``g``, ``s``, ``l``, ``p``, comments) is ignored.
+and the same rule turns ``vn`` into the "normal" attribute.
+
+Materials (``mtllib``, ``usemtl``), when the reader is given the files beside the model
+(`companions.Companions`: `load_mesh` of a path, or of an archive): the faces' materials
+are read from the .mtl files (`mtl.py`). When they use one image (``map_Kd``) and the
+faces have UVs, it becomes `Mesh.texture`; without an image, materials of different
+diffuse colours (``Kd``) become the "color" attribute (each vertex takes the colour of a
+material of its faces). Faces using several images keep their UVs but no texture: a
+mesh carries one image. Everything else (``o``, ``g``, ``s``, ``l``, ``p``, comments)
+is ignored.
 
 Lines are found with one regular expression and their numbers parsed by numpy in bulk;
 a Python loop touches each line once, to sort it by keyword.
@@ -17,8 +25,9 @@ dropped), ``vt`` and ``vn`` lines and ``f`` lines ``v``, ``v/vt``, ``v//vn`` or
 ``v/vt/vn``. UVs: with `corner_uvs`, one ``vt`` line per distinct (u, v) pair and each
 corner names its own (seams are kept as written); else the "uv" attribute, one ``vt``
 per vertex. Normals: one ``vn`` per vertex. Values are float32 written with 9
-significant digits, so they read back exactly. No ``mtllib``: the writer returns one
-file's bytes, and an .mtl file and the image would have to lie next to it.
+significant digits, so they read back exactly. A textured mesh written with a
+``material_library`` name starts with ``mtllib <name>.mtl`` and ``usemtl <name>``;
+`obj_companions` gives that .mtl file and the image, to write beside the OBJ.
 """
 
 from __future__ import annotations
@@ -30,27 +39,38 @@ import numpy as np
 from ..errors import MeshFormatError
 from ..mesh import Mesh
 from ._corners import per_vertex
+from ._images import image_media_type
 from ._polygons import polygon_corners
 from ._text import count_tokens, parse_lines, parse_numbers
+from .companions import Companions
+from .mtl import Material, read_mtl
 
-__all__ = ["read_obj", "write_obj"]
+__all__ = ["obj_companions", "read_obj", "write_obj"]
 
-_LINE = re.compile(rb"^[ \t]*(v|vt|vn|f)[ \t]+([^\r\n#]*)", re.MULTILINE)
+_IMAGE_SUFFIXES = {"image/png": ".png", "image/jpeg": ".jpg"}
+
+_LINE = re.compile(rb"^[ \t]*(v|vt|vn|f|usemtl|mtllib)[ \t]+([^\r\n#]*)", re.MULTILINE)
 _SPACE = np.zeros(256, dtype=bool)
 _SPACE[list(b" \t\n\r\x0b\x0c")] = True
 _SLASH = ord("/")
 
 
-def read_obj(data: bytes) -> Mesh:
-    """Decode an OBJ file into a Mesh. Raises MeshFormatError."""
+def read_obj(data: bytes, files: Companions | None = None) -> Mesh:
+    """Decode an OBJ file into a Mesh, its materials read through ``files`` (see the
+    module docstring; None: materials ignored). Raises MeshFormatError."""
     # A UTF-8 byte-order mark (editors on Windows write one) would hide the first line,
     # and with it the first vertex: every index after it would name the wrong vertex.
     data = data.removeprefix(b"\xef\xbb\xbf")
     data = data.replace(b"\\\r\n", b" ").replace(b"\\\n", b" ")  # line continuations
     matches = _LINE.findall(data)
-    lines: dict[bytes, list[bytes]] = {b"v": [], b"vt": [], b"vn": [], b"f": []}
+    lines: dict[bytes, list[bytes]] = {b"v": [], b"vt": [], b"vn": [], b"f": [],
+                                       b"mtllib": [], b"usemtl": []}  # fmt: skip
+    material_starts: list[int] = []  # the 'f' line each usemtl applies from
     for keyword, body in matches:
+        if keyword == b"usemtl":
+            material_starts.append(len(lines[b"f"]))
         lines[keyword].append(body)
+    matches = [match for match in matches if match[0] not in (b"usemtl", b"mtllib")]
     if not lines[b"v"] and not lines[b"f"]:
         raise MeshFormatError("not an OBJ file: no 'v' or 'f' lines")
     positions = _table(lines[b"v"], 3, "OBJ 'v' line")
@@ -79,12 +99,62 @@ def read_obj(data: bytes) -> Mesh:
         normal = _per_vertex(v_index, vn_index, normal_table, positions.shape[0])
         if normal is not None:
             attributes["normal"] = normal
+    texture = None
+    if files is not None and lines[b"usemtl"]:
+        polygon_start = np.cumsum(corner_counts) - corner_counts
+        polygon = np.searchsorted(polygon_start, triangles[:, 0], side="right") - 1
+        texture, colour = _material_look(
+            lines[b"mtllib"], lines[b"usemtl"], material_starts, polygon, files
+        )
+        if texture is not None and corner_uvs is None:
+            texture = None  # an image without UVs to place it
+        if texture is None and colour is not None and "color" not in attributes:
+            per_vertex_colour = np.zeros((positions.shape[0], 3))
+            per_vertex_colour[faces.reshape(-1)] = np.repeat(colour, 3, axis=0)
+            attributes["color"] = per_vertex_colour
     return Mesh(
         vertices=np.ascontiguousarray(positions[:, :3]),
         faces=faces,
         vertex_attributes={k: v.astype(np.float32) for k, v in attributes.items()},
         corner_uvs=corner_uvs,
+        texture=texture,
     )
+
+
+def _material_look(
+    libraries: list[bytes],
+    names: list[bytes],
+    starts: list[int],
+    polygon: np.ndarray,
+    files: Companions,
+) -> tuple[bytes | None, np.ndarray | None]:
+    """(texture, per-face colours) from the faces' materials: the image when the faces
+    use exactly one, else None; the (faces, 3) diffuse colours when no image is used and
+    the faces' materials have two colours or more, else None."""
+    materials: dict[str, Material] = {}
+    for library in libraries:
+        name = library.decode("utf-8", "replace").strip()
+        data = files.read(name)
+        # "mtllib a.mtl b.mtl" names several files; a single name may hold spaces.
+        for part in [name] if data is not None else name.split():
+            data = data if part == name else files.read(part)
+            if data is not None:
+                materials.update(read_mtl(data))
+    used = [materials.get(name.decode("utf-8", "replace").strip()) for name in names]
+    # The material of each polygon: that of the last usemtl before its 'f' line.
+    which = np.searchsorted(np.asarray(starts), polygon, side="right") - 1
+    present = [used[i] for i in np.unique(which) if i >= 0]
+    images = {m.texture for m in present if m is not None and m.texture}
+    if images:  # one image: the texture (if it is there); several: none of them
+        return (files.read(images.pop()) if len(images) == 1 else None), None
+    palette = np.array(
+        [m.diffuse if m is not None and m.diffuse is not None else (1.0, 1.0, 1.0) for m in used]
+        or [(1.0, 1.0, 1.0)]
+    )
+    colours = np.where((which >= 0)[:, None], palette[np.maximum(which, 0)], 1.0)
+    if len(np.unique(colours, axis=0)) < 2:
+        return None, None
+    return None, colours
 
 
 def write_obj(
@@ -93,16 +163,20 @@ def write_obj(
     vertex_attributes: dict[str, np.ndarray],
     texture: bytes | None = None,
     corner_uvs: np.ndarray | None = None,
+    material_library: str | None = None,
 ) -> bytes:
-    """Encode as OBJ text: see the module docstring. The texture, if any, is not
-    stored: OBJ names its image in a separate .mtl file, and this writer returns one
-    file's bytes."""
+    """Encode as OBJ text: see the module docstring. The texture itself is not in it:
+    OBJ names its image in a separate .mtl file (`obj_companions`)."""
     color = vertex_attributes.get("color")
     normal = vertex_attributes.get("normal")
     columns = [vertices]
     if color is not None:
         columns.append(color[:, :3])
-    parts = [b"# qem-lod\n", _format_rows("v", np.hstack(columns))]
+    parts = [b"# qem-lod\n"]
+    textured = texture is not None and (corner_uvs is not None or "uv" in vertex_attributes)
+    if material_library is not None and textured:
+        parts.append(f"mtllib {material_library}.mtl\nusemtl {material_library}\n".encode())
+    parts.append(_format_rows("v", np.hstack(columns)))
     one_based = faces.astype(np.int64) + 1
     # One index per stored table: v, then vt and vn when present.
     slots = [one_based]
@@ -127,6 +201,15 @@ def write_obj(
     line = "f " + " ".join([corner_format] * 3) + "\n"
     parts.append(((line * faces.shape[0]) % tuple(corners.ravel().tolist())).encode("ascii"))
     return b"".join(parts)
+
+
+def obj_companions(material_library: str, texture: bytes) -> dict[str, bytes]:
+    """The files an OBJ written with ``material_library`` names: ``<name>.mtl`` with one
+    material whose ``map_Kd`` is the image, and the image, ``<name>_texture.png`` (or
+    .jpg), by file name."""
+    image = f"{material_library}_texture{_IMAGE_SUFFIXES.get(image_media_type(texture), '.png')}"
+    mtl = f"newmtl {material_library}\nKd 1 1 1\nmap_Kd {image}\n"
+    return {f"{material_library}.mtl": mtl.encode(), image: bytes(texture)}
 
 
 def _format_rows(keyword: str, values: np.ndarray) -> bytes:

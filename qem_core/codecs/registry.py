@@ -21,9 +21,10 @@ from ..prepare import validate_mesh_arrays
 from ..quantise import QuantisedWedges
 from ._corners import checked_corner_uvs, finite_float32
 from ._images import image_media_type
+from .companions import Companions, DirectoryFiles
 from .glb import is_glb, read_glb, write_glb
 from .msgpack_mesh import is_msgpack_mesh, read_msgpack, write_msgpack
-from .obj import read_obj, write_obj
+from .obj import obj_companions, read_obj, write_obj
 from .off import is_off, read_off
 from .ply import read_ply, write_ply
 from .stl import is_ascii_stl, is_binary_stl, read_stl
@@ -34,6 +35,7 @@ __all__ = [
     "decode_msgpack_mesh",
     "encode_mesh",
     "load_mesh",
+    "obj_companions",
     "write_mesh",
 ]
 
@@ -45,6 +47,8 @@ _READERS: dict[str, Callable[[bytes], Mesh]] = {
     "glb": read_glb,
     "msgpack": read_msgpack,
 }
+# Readers that read the files a model names beside itself (an OBJ's .mtl and images).
+_READS_COMPANIONS = {"obj"}
 _WRITERS: dict[str, Callable[..., bytes]] = {
     "ply": write_ply,
     "obj": write_obj,
@@ -67,7 +71,12 @@ _ATTRIBUTE_WIDTHS = {"normal": (3,), "color": (3, 4), "uv": (2,)}
 MeshSource = str | os.PathLike | bytes | bytearray | memoryview | BinaryIO
 
 
-def load_mesh(source: MeshSource, format: str | None = None, name: str | None = None) -> Mesh:
+def load_mesh(
+    source: MeshSource,
+    format: str | None = None,
+    name: str | None = None,
+    files: Companions | None = None,
+) -> Mesh:
     """Read and validate a triangle mesh.
 
     source : a file path, the file's bytes, or a binary file object.
@@ -77,6 +86,9 @@ def load_mesh(source: MeshSource, format: str | None = None, name: str | None = 
         if it has 'v' and 'f' lines).
     name : the file name, for format inference and messages; defaults to the path's or
         the file object's name.
+    files : where the files the model names beside itself are read (an OBJ's .mtl and
+        its images, `companions.py`); defaults to the path's directory for a path, and
+        to none for bytes or a file object.
 
     Returns a Mesh with float64 (n, 3) vertices, int32 (m, 3) faces (polygons
     triangulated: fans, strips past 16 corners), the attributes the file has, and
@@ -94,6 +106,8 @@ def load_mesh(source: MeshSource, format: str | None = None, name: str | None = 
     not PNG or JPEG is left out (the UVs stay): see `_servable_texture`.
     """
     data, source_name = _read_source(source)
+    if files is None and isinstance(source, str | os.PathLike):
+        files = DirectoryFiles(os.path.dirname(os.path.abspath(source)))
     name = name if name is not None else source_name
     if name is not None:
         # A path from a file system that is not UTF-8 holds lone surrogates, which the
@@ -102,7 +116,8 @@ def load_mesh(source: MeshSource, format: str | None = None, name: str | None = 
     label = name or "mesh data"
     fmt = _resolve_format(format, name, data)
     try:
-        mesh = _READERS[fmt](data)
+        reader = _READERS[fmt]
+        mesh = reader(data, files) if fmt in _READS_COMPANIONS else reader(data)
     except InvalidMeshError as error:
         raise type(error)(f"{label}: {error}") from None
     except (ValueError, IndexError, OverflowError, TypeError) as error:
@@ -177,6 +192,7 @@ def encode_mesh(
     grid_box: tuple[object, object] | None = None,
     name: str | None = None,
     wedges: QuantisedWedges | None = None,
+    material_library: str | None = None,
 ) -> bytes:
     """Encode a triangle mesh as "ply", "obj", "glb" or "msgpack" bytes.
 
@@ -195,6 +211,8 @@ def encode_mesh(
     name : "msgpack" only: stored in the message.
     wedges : "msgpack" only: the level's wedges quantised on the split stream's
         attribute grid (`qem_core.stream.quantised_wedges`), for a client that refines.
+    material_library : "obj" only: with a texture and UVs, the OBJ names its material
+        library ``<material_library>.mtl``, which `obj_companions` writes with the image.
 
     Raises InvalidOptionsError for an unknown format or an option the format does not
     take, InvalidMeshError for bad arrays. docs/formats.md has each format's layout.
@@ -228,6 +246,10 @@ def encode_mesh(
         raise InvalidOptionsError(
             f"quantize_bits, grid_box and wedges apply to 'msgpack' only, not {fmt!r}"
         )
+    if fmt == "obj":
+        return write_obj(vertices, faces, attributes, texture, corner_uvs, material_library)
+    if material_library is not None:
+        raise InvalidOptionsError(f"material_library applies to 'obj' only, not {fmt!r}")
     return _WRITERS[fmt](vertices, faces, attributes, texture, corner_uvs)
 
 

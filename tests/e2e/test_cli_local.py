@@ -193,3 +193,20 @@ def test_a_loop_of_links_is_a_message(built):
     result = qem("lod", "sphere.qpm", "-n", "50", "-o", "loop_a.ply", cwd=folder)
     assert result.returncode != 0
     assert "cannot write loop_a.ply" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_simplify_keeps_the_texture_of_an_obj_with_its_mtl(tmp_path):
+    """`qem simplify spot.obj` with `mtllib spot.mtl` and `map_Kd spot_texture.png`
+    beside it: the GLB embeds the image; an OBJ output gets its .mtl and image."""
+    spot = REPO / "server" / "demo" / "spot.obj"
+    image = qem_core.load_mesh(spot.with_suffix(".glb")).texture
+    (tmp_path / "spot_texture.png").write_bytes(image)
+    (tmp_path / "spot.mtl").write_text("newmtl spot\nmap_Kd spot_texture.png\n")
+    (tmp_path / "spot.obj").write_bytes(b"mtllib spot.mtl\nusemtl spot\n" + spot.read_bytes())
+    for output in ("spot.glb", "small.obj"):
+        result = qem("simplify", "spot.obj", "-n", "293", "-o", output, cwd=tmp_path)
+        assert result.returncode == 0, result.stderr
+        level = qem_core.load_mesh(tmp_path / output)
+        assert level.n_vertices == 293
+        assert level.texture == image
+    assert (tmp_path / "small.mtl").is_file() and (tmp_path / "small_texture.png").is_file()

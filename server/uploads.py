@@ -25,6 +25,9 @@ from python_multipart.multipart import MultipartParser, parse_options_header
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import ClientDisconnect, Request
 
+from qem_core import MeshFormatError
+from qem_core.codecs.archive import ArchiveTooLarge, check_archive
+
 from .jobs import JobQueue
 from .problems import Problem
 from .storage import BlobWriter, MeshRecord, Storage, new_mesh_id, upload_key
@@ -32,6 +35,7 @@ from .storage import BlobWriter, MeshRecord, Storage, new_mesh_id, upload_key
 __all__ = [
     "MESH_EXTENSIONS",
     "check_file_name",
+    "check_uploaded_archive",
     "import_file",
     "receive_upload",
     "register_upload",
@@ -40,7 +44,8 @@ __all__ = [
 log = logging.getLogger("qem.server")
 
 # File name extension -> format of qem_core.codecs.load_mesh.
-MESH_EXTENSIONS = {".ply": "ply", ".obj": "obj", ".stl": "stl", ".off": "off", ".glb": "glb"}
+MESH_EXTENSIONS = {".ply": "ply", ".obj": "obj", ".stl": "stl", ".off": "off", ".glb": "glb",
+                   ".zip": "zip"}  # fmt: skip
 
 _FIELD = "file"
 _BUFFER = 1 << 20  # write to storage in pieces of about this size
@@ -258,6 +263,20 @@ async def _receive_multipart(request: Request, content_type: str, sink: _Sink) -
             f"-F {_FIELD}=@mesh.ply, or as the raw body with ?name=mesh.ply",
         )
     return state.filename
+
+
+def check_uploaded_archive(storage: Storage, key: str) -> None:
+    """Refuse an uploaded zip archive at once (400, or 413 for one that would inflate
+    past the limits), before a build is queued for it: its member names, links, sizes and
+    compression ratios, and that it holds exactly one model (qem_core's archive checks,
+    which read no member). The refused blob is removed."""
+    try:
+        with storage.blobs.local_path(key) as path:
+            check_archive(path)
+    except MeshFormatError as error:
+        storage.blobs.delete(key)
+        kind = "upload-too-large" if isinstance(error, ArchiveTooLarge) else "bad-upload"
+        raise Problem(kind, f"the zip archive is refused: {error}") from None
 
 
 def register_upload(

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import io
 import os
+import posixpath
 from collections.abc import Callable
 from typing import BinaryIO
 
@@ -21,6 +22,7 @@ from ..prepare import validate_mesh_arrays
 from ..quantise import QuantisedWedges
 from ._corners import checked_corner_uvs, finite_float32
 from ._images import image_media_type
+from .archive import is_zip, open_archive
 from .companions import Companions, DirectoryFiles
 from .glb import is_glb, read_glb, write_glb
 from .msgpack_mesh import is_msgpack_mesh, read_msgpack, write_msgpack
@@ -65,7 +67,7 @@ MEDIA_TYPES: dict[str, str] = {
     "glb": "model/gltf-binary",
     "msgpack": "application/vnd.msgpack",
 }
-_EXTENSIONS = {f".{name}": name for name in _READERS} | {".mpk": "msgpack"}
+_EXTENSIONS = {f".{name}": name for name in _READERS} | {".mpk": "msgpack", ".zip": "zip"}
 _ATTRIBUTE_WIDTHS = {"normal": (3,), "color": (3, 4), "uv": (2,)}
 
 MeshSource = str | os.PathLike | bytes | bytearray | memoryview | BinaryIO
@@ -80,10 +82,11 @@ def load_mesh(
     """Read and validate a triangle mesh.
 
     source : a file path, the file's bytes, or a binary file object.
-    format : "ply", "obj", "stl", "off", "glb" or "msgpack"; None infers it from the
-        name's extension, else from the content (PLY "ply" line, GLB "glTF" magic, OFF
-        keyword, binary STL size, ASCII STL "solid", the msgpack form's header, else OBJ
-        if it has 'v' and 'f' lines).
+    format : "ply", "obj", "stl", "off", "glb", "msgpack" or "zip"; None infers it from
+        the name's extension, else from the content (zip and PLY signatures, GLB "glTF"
+        magic, OFF keyword, binary STL size, ASCII STL "solid", the msgpack form's
+        header, else OBJ if it has 'v' and 'f' lines). A zip archive holds one model
+        file and the files it names (`archive.py`: checked before anything is read).
     name : the file name, for format inference and messages; defaults to the path's or
         the file object's name.
     files : where the files the model names beside itself are read (an OBJ's .mtl and
@@ -115,6 +118,14 @@ def load_mesh(
         name = str(name).encode("utf-8", "replace").decode("utf-8")
     label = name or "mesh data"
     fmt = _resolve_format(format, name, data)
+    if fmt == "zip":  # the one model inside, with the files it names from the archive
+        try:
+            model, data, files = open_archive(data)
+        except MeshFormatError as error:
+            raise type(error)(f"{label}: {error}") from None
+        label = f"{label}: {model}"
+        name = posixpath.basename(model)
+        fmt = _resolve_format(None, name, data)
     try:
         reader = _READERS[fmt]
         mesh = reader(data, files) if fmt in _READS_COMPANIONS else reader(data)
@@ -300,10 +311,10 @@ def _read_source(source: MeshSource) -> tuple[bytes, str | None]:
 
 
 def _resolve_format(format: str | None, name: str | None, data: bytes) -> str:
-    supported = ", ".join(sorted(_READERS))
+    supported = ", ".join(sorted([*_READERS, "zip"]))
     if format is not None:
         fmt = str(format).lower().lstrip(".")
-        if fmt not in _READERS:
+        if fmt not in _READERS and fmt != "zip":
             raise MeshFormatError(f"unknown mesh format {format!r}; supported: {supported}")
         return fmt
     extension = os.path.splitext(name or "")[1].lower()
@@ -322,6 +333,8 @@ def _resolve_format(format: str | None, name: str | None, data: bytes) -> str:
 
 def _sniff(data: bytes) -> str | None:
     """The format the content looks like, or None."""
+    if is_zip(data):
+        return "zip"
     if data[:3] == b"ply" and data[3:4] in (b"\n", b"\r"):
         return "ply"
     if is_glb(data):

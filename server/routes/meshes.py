@@ -48,7 +48,12 @@ from ..schemas import (
     upload_options,
 )
 from ..storage import MeshRecord, new_mesh_id, upload_key
-from ..uploads import check_file_name, receive_upload, register_upload
+from ..uploads import (
+    check_file_name,
+    check_uploaded_archive,
+    receive_upload,
+    register_upload,
+)
 
 __all__ = ["router"]
 
@@ -155,7 +160,8 @@ async def upload_mesh(
     storage: StorageDep,
     jobs: JobsDep,
 ) -> UploadAccepted:
-    """The mesh (PLY, OBJ, STL, OFF or GLB) as the multipart field ``file``, or as the
+    """The mesh (PLY, OBJ, STL, OFF or GLB, or a zip archive of one model with the files
+    it names: an OBJ with its .mtl and images) as the multipart field ``file``, or as the
     raw body with ``?name=`` giving its file name. Build options go in the query. The
     file is parsed by the build; follow ``GET /v1/meshes/{id}`` until ``ready`` or
     ``failed``."""
@@ -172,6 +178,8 @@ async def upload_mesh(
     except BaseException:
         await run_in_threadpool(writer.abort)
         raise
+    if name is not None and name.lower().endswith(".zip"):
+        await run_in_threadpool(check_uploaded_archive, storage, upload_key(mesh_id))
     record = await run_in_threadpool(
         lambda: register_upload(
             storage,

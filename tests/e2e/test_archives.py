@@ -1,0 +1,108 @@
+"""Zip archives through the real server and the CLI: an OBJ with its .mtl and image
+builds textured; hostile archives are refused at once with a problem, nothing kept and
+nothing written outside the data directory."""
+
+from __future__ import annotations
+
+import io
+import re
+import stat
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import httpx
+import pytest
+
+import qem_core
+
+REPO = Path(__file__).resolve().parents[2]
+SPOT = REPO / "server" / "demo" / "spot.obj"
+PROBLEM = "application/problem+json"
+
+
+def _zip(members: dict[str, bytes], links: tuple[str, ...] = ()) -> bytes:
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as archive:
+        for name, data in members.items():
+            info = zipfile.ZipInfo(name)
+            info.compress_type = zipfile.ZIP_DEFLATED
+            if name in links:
+                info.external_attr = (stat.S_IFLNK | 0o777) << 16
+            archive.writestr(info, data)
+    return out.getvalue()
+
+
+@pytest.fixture(scope="module")
+def spot_image() -> bytes:
+    return qem_core.load_mesh(SPOT.with_suffix(".glb")).texture
+
+
+@pytest.fixture(scope="module")
+def spot_zip(spot_image) -> bytes:
+    """Spot as photogrammetry tools export: OBJ + MTL + PNG, in a folder of the zip."""
+    return _zip({
+        "spot/spot.obj": b"mtllib spot.mtl\nusemtl spot\n" + SPOT.read_bytes(),
+        "spot/spot.mtl": b"newmtl spot\nKd 1 1 1\nmap_Kd textures/spot.png\n",
+        "spot/textures/spot.png": spot_image,
+    })  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def http(server):
+    with httpx.Client(base_url=server.url, timeout=60) as client:
+        yield client
+
+
+def test_an_obj_with_its_mtl_and_image_in_a_zip_builds_textured(server, http, spot_zip,
+                                                                 spot_image, tmp_path):  # fmt: skip
+    path = tmp_path / "spot.zip"
+    path.write_bytes(spot_zip)
+    with server.client() as qem:
+        info = qem.wait_ready(qem.upload(path), timeout=300)
+    assert info["name"] == "spot.zip" and info["vertices"] == 2930
+    level = http.get(f"/v1/meshes/{info['id']}/lod", params={"vertices": 500, "format": "glb"})
+    assert level.status_code == 200
+    mesh = qem_core.load_mesh(level.content, format="glb")
+    assert mesh.n_vertices == 500 and mesh.texture == spot_image
+    assert http.get(f"/v1/meshes/{info['id']}/texture").content == spot_image
+
+
+def test_the_cli_uploads_a_zip(server, spot_zip, tmp_path):
+    (tmp_path / "spot.zip").write_bytes(spot_zip)
+    done = subprocess.run(
+        [sys.executable, "-m", "client.cli", "upload", "spot.zip", "--server", server.url],
+        cwd=tmp_path, env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin"},
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+
+
+def _bomb() -> bytes:
+    return _zip({"a.obj": b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "pad.png": b"\0" * (64 << 20)})
+
+
+HOSTILE = [
+    ("parent path", lambda: _zip({"../evil.obj": b"v 0 0 0\n"}), 400, "outside the archive"),
+    ("absolute path", lambda: _zip({"/tmp/evil.obj": b"v 0 0 0\n"}), 400, "outside the archive"),
+    ("link", lambda: _zip({"a.obj": b"v 0 0 0\n", "b.png": b"/etc/passwd"}, links=("b.png",)),
+     400, "link"),
+    ("zip bomb", _bomb, 413, "zip bomb"),
+    ("no model", lambda: _zip({"readme.txt": b"hello", "t.png": b"x"}), 400,
+     "no model file.*readme.txt, t.png"),
+    ("two models", lambda: _zip({"a.obj": b"v 0 0 0\n", "b.ply": b"ply\n"}), 400,
+     "2 model files.*a.obj, b.ply"),
+    ("not a zip", lambda: b"PK\x03\x04 but nothing after", 400, "not a readable zip"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("case", "make", "status", "words"), HOSTILE, ids=[c[0] for c in HOSTILE])
+def test_a_hostile_archive_is_refused_at_once(server, http, case, make, status, words):
+    before = sorted(p.name for p in (server.data_dir / "blobs").rglob("*"))
+    response = http.post("/v1/meshes", params={"name": "upload.zip"}, content=make())
+    assert response.status_code == status, response.text
+    assert response.headers["content-type"] == PROBLEM
+    assert re.search(words, response.json()["detail"]), response.text
+    assert sorted(p.name for p in (server.data_dir / "blobs").rglob("*")) == before
+    assert not list(server.data_dir.parent.rglob("evil.obj"))

@@ -1,0 +1,70 @@
+"""qem_core.codecs.archive: a model and the files it names, from a zip, never from
+outside it."""
+
+from __future__ import annotations
+
+import io
+import zipfile
+
+import pytest
+
+import qem_core
+from qem_core.codecs.archive import ArchiveLimits, ArchiveTooLarge, open_archive
+
+TRIANGLE_OBJ = b"mtllib m.mtl\nusemtl red\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4 3\n"
+
+
+def _zip(members: dict[str, bytes]) -> bytes:
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as archive:
+        for name, data in members.items():
+            archive.writestr(name, data)
+    return out.getvalue()
+
+
+def test_names_resolve_inside_the_archive_only():
+    data = _zip({
+        "model/a.obj": TRIANGLE_OBJ,
+        "model/m.mtl": b"newmtl red\nKd 1 0 0\n",
+        "secret.txt": b"not for the model",
+        "__MACOSX/model/._a.obj": b"\0\0",  # macOS's resource fork: not a second model
+    })  # fmt: skip
+    model, content, files = open_archive(data)
+    assert model == "model/a.obj" and content == TRIANGLE_OBJ
+    assert files.read("m.mtl") == b"newmtl red\nKd 1 0 0\n"
+    assert files.read("../secret.txt") == b"not for the model"  # inside: model/../secret.txt
+    assert files.read("../../secret.txt") is None  # past the archive's root
+    assert files.read("/secret.txt") is None
+    assert files.read("missing.png") is None
+
+
+def test_load_mesh_reads_a_zip_by_name_or_content():
+    data = _zip({"a.obj": TRIANGLE_OBJ, "m.mtl": b"newmtl red\nKd 1 0 0\nnewmtl blue\nKd 0 0 1\n"})
+    for mesh in (qem_core.load_mesh(data), qem_core.load_mesh(data, format="zip")):
+        assert mesh.name == "a.obj" and mesh.n_faces == 2
+
+
+def test_a_member_that_inflates_past_its_declared_size_is_refused():
+    data = bytearray(_zip({"a.obj": TRIANGLE_OBJ * 100}))
+    # Lower the uncompressed size in the central directory (the local header is not
+    # read for it): the member then inflates past what the archive declared.
+    at = data.rfind(b"PK\x01\x02")
+    data[at + 24 : at + 28] = (10).to_bytes(4, "little")
+    with pytest.raises(qem_core.MeshFormatError, match="declared size|damaged"):
+        open_archive(bytes(data))
+
+
+def test_the_limits_are_checked_before_anything_is_read():
+    data = _zip({f"{i}.png": b"x" for i in range(5)} | {"a.obj": TRIANGLE_OBJ})
+    with pytest.raises(ArchiveTooLarge, match="6 members"):
+        open_archive(data, ArchiveLimits(max_members=5))
+    with pytest.raises(ArchiveTooLarge, match="inflates to over 10 bytes"):
+        open_archive(data, ArchiveLimits(max_bytes=10))
+
+
+def test_an_encrypted_member_is_refused():
+    data = bytearray(_zip({"a.obj": TRIANGLE_OBJ}))
+    at = data.rfind(b"PK\x01\x02")
+    data[at + 8] |= 1  # the central directory's "encrypted" flag
+    with pytest.raises(qem_core.MeshFormatError, match="encrypted"):
+        open_archive(bytes(data))

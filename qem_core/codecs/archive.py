@@ -37,6 +37,13 @@ __all__ = [
 # The model formats an archive may hold (one of them).
 MODEL_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb")
 _CHUNK = 1 << 20
+# What Python's zipfile raises on a damaged archive (found by fuzz/: a version it does not
+# read, an offset before the file's start, a name that is not UTF-8 where its flag says
+# so): refusals of the archive's bytes, each reported as such.
+_ZIP_ERRORS = (
+    zipfile.BadZipFile, zipfile.LargeZipFile, zlib.error, ValueError, OSError, EOFError,
+    NotImplementedError, UnicodeDecodeError, IndexError,
+)  # fmt: skip
 # Members smaller than this may compress any amount (a short text file of few distinct
 # lines does): only a large member inflating many times is a bomb.
 _RATIO_FLOOR = 1 << 20
@@ -98,7 +105,7 @@ def check_archive(path: str | os.PathLike, limits: ArchiveLimits = ArchiveLimits
 def _zip(file) -> zipfile.ZipFile:
     try:
         return zipfile.ZipFile(file)
-    except (zipfile.BadZipFile, zipfile.LargeZipFile, ValueError, OSError, EOFError) as error:
+    except _ZIP_ERRORS as error:
         raise MeshFormatError(f"not a readable zip archive ({error})") from None
 
 
@@ -147,6 +154,8 @@ def _checked_members(
 
 def _checked_name(info: zipfile.ZipInfo) -> str:
     name = info.filename
+    if not name:
+        raise MeshFormatError("an archive member has no name")
     parts = name.replace("\\", "/").split("/")
     if name.startswith(("/", "\\")) or (len(name) > 1 and name[1] == ":") or ".." in parts:
         raise MeshFormatError(
@@ -161,12 +170,11 @@ def _read_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo) -> bytes:
     out = bytearray()
     try:
         with archive.open(info) as member:
-            while chunk := member.read(_CHUNK):
+            # One byte past the declared size is enough to know it lies.
+            while len(out) <= info.file_size and (chunk := member.read(_CHUNK)):
                 out += chunk
-                if len(out) > info.file_size:
-                    raise ArchiveTooLarge(
-                        f"archive member {info.filename!r} inflates past its declared size"
-                    )
-    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, NotImplementedError) as error:
+    except _ZIP_ERRORS as error:
         raise MeshFormatError(f"archive member {info.filename!r} is damaged ({error})") from None
+    if len(out) > info.file_size:
+        raise ArchiveTooLarge(f"archive member {info.filename!r} inflates past its declared size")
     return bytes(out)

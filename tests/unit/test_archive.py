@@ -50,7 +50,9 @@ def test_a_member_that_inflates_past_its_declared_size_is_refused():
     # read for it): the member then inflates past what the archive declared.
     at = data.rfind(b"PK\x01\x02")
     data[at + 24 : at + 28] = (10).to_bytes(4, "little")
-    with pytest.raises(qem_core.MeshFormatError, match="declared size|damaged"):
+    # zipfile stops at the declared size and then finds the CRC wrong; a reader that
+    # went on would be stopped one byte past it.
+    with pytest.raises(qem_core.MeshFormatError, match="damaged .Bad CRC|declared size"):
         open_archive(bytes(data))
 
 
@@ -68,3 +70,46 @@ def test_an_encrypted_member_is_refused():
     data[at + 8] |= 1  # the central directory's "encrypted" flag
     with pytest.raises(qem_core.MeshFormatError, match="encrypted"):
         open_archive(bytes(data))
+
+
+def _central(data: bytearray) -> int:
+    return data.rfind(b"PK\x01\x02")
+
+
+def _no_name(data: bytearray) -> None:  # the name's bytes read as the entry's comment
+    at = _central(data)
+    data[at + 28 : at + 30], data[at + 32 : at + 34] = b"\0\0", (5).to_bytes(2, "little")
+
+
+def _future_version(data: bytearray) -> None:
+    at = _central(data)
+    data[at + 4] = data[at + 6] = 163  # "needs zip 16.3"
+
+
+def _bad_utf8_name(data: bytearray) -> None:  # the local header says UTF-8, holds 0x9b
+    data[7] |= 0x08
+    data[30] = 0x9B
+
+
+def _directory_past_its_place(data: bytearray) -> None:  # member offsets go negative
+    at = data.rfind(b"PK\x05\x06")
+    offset = int.from_bytes(data[at + 16 : at + 20], "little")
+    data[at + 16 : at + 20] = (offset + 100).to_bytes(4, "little")
+
+
+@pytest.mark.parametrize(
+    ("damage", "words"),
+    [
+        (_no_name, "has no name"),
+        (_future_version, "not a readable zip archive .zip file version 16.3"),
+        (_bad_utf8_name, "is damaged .'utf-8' codec"),
+        (_directory_past_its_place, "is damaged .negative seek"),
+    ],
+)
+def test_what_zipfile_raises_on_damaged_archives_is_a_refusal(damage, words):
+    """Found by fuzz/ (zip target): IndexError, NotImplementedError, UnicodeDecodeError
+    and ValueError from zipfile itself."""
+    data = bytearray(_zip({"a.obj": TRIANGLE_OBJ}))
+    damage(data)
+    with pytest.raises(qem_core.MeshFormatError, match=words):
+        qem_core.load_mesh(bytes(data), format="zip")

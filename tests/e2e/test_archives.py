@@ -106,3 +106,32 @@ def test_a_hostile_archive_is_refused_at_once(server, http, case, make, status, 
     assert re.search(words, response.json()["detail"]), response.text
     assert sorted(p.name for p in (server.data_dir / "blobs").rglob("*")) == before
     assert not list(server.data_dir.parent.rglob("evil.obj"))
+
+
+def test_files_dropped_together_on_the_viewer_upload_as_one_zip(server, http, spot_image,
+                                                                tmp_path):  # fmt: skip
+    """An OBJ, its .mtl and its image picked at once in the page: packed into spot.zip
+    by the page (client/web/js/zip.js), built textured, shown with its texture."""
+    from .test_viewer import READY_TIMEOUT_MS, chromium_page, require_web_packages
+
+    require_web_packages()
+    (tmp_path / "spot.obj").write_bytes(b"mtllib spot.mtl\nusemtl spot\n" + SPOT.read_bytes())
+    (tmp_path / "spot.mtl").write_text("newmtl spot\nmap_Kd spot_texture.png\n")
+    (tmp_path / "spot_texture.png").write_bytes(spot_image)
+    with chromium_page(tmp_path / "profile") as page:
+        page.goto(f"{server.url}/")
+        page.set_input_files(
+            "#file-input", [str(tmp_path / name) for name in ("spot.obj", "spot.mtl",
+                                                              "spot_texture.png")]
+        )  # fmt: skip
+        page.wait_for_function(
+            "() => { const s = window.qemViewer?.state;"
+            " return s?.level !== null && s.level === s.full && s.textureShown; }",
+            timeout=READY_TIMEOUT_MS,
+        )
+        state = page.evaluate("window.qemViewer.state")
+        assert state["attributes"] == ["uv"] and state["failure"] is None
+        info = http.get(f"/v1/meshes/{state['id']}").json()
+        assert info["name"] == "spot.zip" and info["vertices"] == 2930
+        assert http.get(f"/v1/meshes/{state['id']}/texture").content == spot_image
+        assert page.errors == []

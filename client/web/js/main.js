@@ -11,6 +11,7 @@ import { getMesh, listMeshes, lodError, lodUrl, splitsUrl, uploadMesh } from "./
 import { ProgressiveLevels, decodeBaseMesh, problemError, streamSplits } from "./refine.js";
 import { MeshScene } from "./scene.js";
 import { openExport, streamExport } from "./static_source.js";
+import { zipFiles } from "./zip.js";
 
 const $ = (id) => document.getElementById(id);
 const LIST_POLL_MS = 2000; // while some mesh is queued or building
@@ -126,6 +127,22 @@ function setUploadStatus(text, bad = false) {
   box.classList.toggle("bad", bad);
 }
 
+const MODEL_SUFFIX = /\.(ply|obj|stl|off|glb)$/i;
+
+/** One file as it is; several (an OBJ with its .mtl and images) as one zip archive, named
+ * after the model among them, which the server reads with the files it names. */
+async function uploadFiles(fileList) {
+  const files = [...fileList];
+  if (files.length <= 1) return files.length ? upload(files[0]) : undefined;
+  const model = files.find((file) => MODEL_SUFFIX.test(file.name));
+  const name = `${model ? model.name.replace(MODEL_SUFFIX, "") : "upload"}.zip`;
+  setUploadStatus(`packing ${files.length} files into ${name}…`);
+  const entries = await Promise.all(
+    files.map(async (file) => ({ name: file.name, bytes: new Uint8Array(await file.arrayBuffer()) })),
+  );
+  return upload(new File([zipFiles(entries)], name, { type: "application/zip" }));
+}
+
 async function upload(file) {
   const token = $("token-input").value.trim();
   setUploadStatus(`uploading ${file.name}…`);
@@ -170,7 +187,7 @@ function setUpUploads() {
   const zone = $("drop-zone");
   const input = $("file-input");
   input.addEventListener("change", () => {
-    if (input.files.length) upload(input.files[0]);
+    uploadFiles(input.files);
     input.value = "";
   });
   zone.addEventListener("keydown", (event) => {
@@ -186,8 +203,7 @@ function setUpUploads() {
   zone.addEventListener("drop", (event) => {
     event.preventDefault();
     zone.classList.remove("over");
-    const file = event.dataTransfer.files[0];
-    if (file) upload(file);
+    uploadFiles(event.dataTransfer.files);
   });
 }
 

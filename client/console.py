@@ -42,6 +42,7 @@ OUTPUT_FORMATS = {
     ".glb": "glb",
     ".msgpack": "msgpack",
     ".mpk": "msgpack",
+    ".zip": "zip",  # the OBJ with its .mtl and texture
 }
 
 

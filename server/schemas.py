@@ -23,7 +23,7 @@ __all__ = [
     "mesh_info",
 ]
 
-LodFormat = Literal["ply", "obj", "glb", "msgpack"]
+LodFormat = Literal["ply", "obj", "glb", "msgpack", "zip"]
 LOD_FORMATS: tuple[str, ...] = typing.get_args(LodFormat)
 
 

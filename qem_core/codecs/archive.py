@@ -32,6 +32,7 @@ __all__ = [
     "check_archive",
     "is_zip",
     "open_archive",
+    "write_archive",
 ]
 
 # The model formats an archive may hold (one of them).
@@ -178,3 +179,15 @@ def _read_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo) -> bytes:
     if len(out) > info.file_size:
         raise ArchiveTooLarge(f"archive member {info.filename!r} inflates past its declared size")
     return bytes(out)
+
+
+def write_archive(files: dict[str, bytes]) -> bytes:
+    """A zip archive of ``files`` (name -> bytes), deflated, with a fixed date so that the
+    same files give the same bytes (an ETag stays valid)."""
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as archive:
+        for name, data in files.items():
+            info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            archive.writestr(info, data)
+    return out.getvalue()

@@ -42,10 +42,11 @@ from ._corners import per_vertex
 from ._images import image_media_type
 from ._polygons import polygon_corners
 from ._text import count_tokens, parse_lines, parse_numbers
+from .archive import write_archive
 from .companions import Companions
 from .mtl import Material, read_mtl
 
-__all__ = ["obj_companions", "read_obj", "write_obj"]
+__all__ = ["obj_companions", "read_obj", "write_obj", "write_obj_zip"]
 
 _IMAGE_SUFFIXES = {"image/png": ".png", "image/jpeg": ".jpg"}
 
@@ -201,6 +202,24 @@ def write_obj(
     line = "f " + " ".join([corner_format] * 3) + "\n"
     parts.append(((line * faces.shape[0]) % tuple(corners.ravel().tolist())).encode("ascii"))
     return b"".join(parts)
+
+
+def write_obj_zip(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    vertex_attributes: dict[str, np.ndarray],
+    texture: bytes | None = None,
+    corner_uvs: np.ndarray | None = None,
+) -> bytes:
+    """The OBJ in a zip archive with what it names: ``mesh.obj``, and for a textured mesh
+    ``mesh.mtl`` and ``mesh_texture.png`` (or .jpg); one download that keeps the look."""
+    textured = texture is not None and (corner_uvs is not None or "uv" in vertex_attributes)
+    library = "mesh" if textured else None
+    files = {"mesh.obj": write_obj(vertices, faces, vertex_attributes, texture, corner_uvs,
+                                   library)}  # fmt: skip
+    if textured:
+        files.update(obj_companions("mesh", texture))
+    return write_archive(files)
 
 
 def obj_companions(material_library: str, texture: bytes) -> dict[str, bytes]:

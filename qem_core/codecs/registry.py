@@ -26,7 +26,7 @@ from .archive import is_zip, open_archive
 from .companions import Companions, DirectoryFiles
 from .glb import is_glb, read_glb, write_glb
 from .msgpack_mesh import is_msgpack_mesh, read_msgpack, write_msgpack
-from .obj import obj_companions, read_obj, write_obj
+from .obj import obj_companions, read_obj, write_obj, write_obj_zip
 from .off import is_off, read_off
 from .ply import read_ply, write_ply
 from .stl import is_ascii_stl, is_binary_stl, read_stl
@@ -56,6 +56,7 @@ _WRITERS: dict[str, Callable[..., bytes]] = {
     "obj": write_obj,
     "glb": write_glb,
     "msgpack": write_msgpack,
+    "zip": write_obj_zip,
 }
 # Content types for HTTP. PLY and OFF have no registered type: the x- names are the
 # customary ones.
@@ -66,6 +67,7 @@ MEDIA_TYPES: dict[str, str] = {
     "off": "model/x-off",
     "glb": "model/gltf-binary",
     "msgpack": "application/vnd.msgpack",
+    "zip": "application/zip",
 }
 _EXTENSIONS = {f".{name}": name for name in _READERS} | {".mpk": "msgpack", ".zip": "zip"}
 _ATTRIBUTE_WIDTHS = {"normal": (3,), "color": (3, 4), "uv": (2,)}
@@ -205,7 +207,8 @@ def encode_mesh(
     wedges: QuantisedWedges | None = None,
     material_library: str | None = None,
 ) -> bytes:
-    """Encode a triangle mesh as "ply", "obj", "glb" or "msgpack" bytes.
+    """Encode a triangle mesh as "ply", "obj", "glb", "msgpack" or "zip" bytes ("zip":
+    the OBJ with its .mtl and texture image, `obj.write_obj_zip`).
 
     vertices : (n, 3) float; faces : (m, 3) int in [0, n).
     vertex_attributes : optional "normal" (n, 3), "color" (n, 3 or 4) in [0, 1],

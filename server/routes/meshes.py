@@ -39,6 +39,7 @@ from ..problems import Problem, problem_responses
 from ..ranges import byte_range, if_range_holds
 from ..read_path import ReadPath
 from ..schemas import (
+    LOD_FORMATS,
     LodFormat,
     MeshInfo,
     MeshList,
@@ -225,7 +226,7 @@ def get_mesh(mesh_id: str, storage: StorageDep, response: Response) -> MeshInfo:
     responses={
         200: {
             "description": "the mesh with exactly X-Lod-Vertices vertices",
-            "content": {codecs.MEDIA_TYPES[f]: {} for f in ("ply", "obj", "glb", "msgpack")},
+            "content": {codecs.MEDIA_TYPES[f]: {} for f in LOD_FORMATS},
         },
         304: {"description": "not modified (If-None-Match)"},
         **problem_responses(404, 409, 422),

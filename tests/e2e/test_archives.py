@@ -67,6 +67,14 @@ def test_an_obj_with_its_mtl_and_image_in_a_zip_builds_textured(server, http, sp
     mesh = qem_core.load_mesh(level.content, format="glb")
     assert mesh.n_vertices == 500 and mesh.texture == spot_image
     assert http.get(f"/v1/meshes/{info['id']}/texture").content == spot_image
+    # The OBJ level with its .mtl and image, in one download.
+    level = http.get(f"/v1/meshes/{info['id']}/lod", params={"vertices": 500, "format": "zip"})
+    assert level.headers["content-type"] == "application/zip"
+    assert sorted(zipfile.ZipFile(io.BytesIO(level.content)).namelist()) == [
+        "mesh.mtl", "mesh.obj", "mesh_texture.png"
+    ]  # fmt: skip
+    mesh = qem_core.load_mesh(level.content)
+    assert mesh.n_vertices == 500 and mesh.texture == spot_image
 
 
 def test_the_cli_uploads_a_zip(server, spot_zip, tmp_path):

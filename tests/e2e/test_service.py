@@ -56,7 +56,7 @@ def test_metadata(qem, bunny, local_pm):
     assert qem.info(bunny["id"]) == bunny
 
 
-@pytest.mark.parametrize("fmt", ["ply", "obj", "glb", "msgpack"])
+@pytest.mark.parametrize("fmt", ["ply", "obj", "glb", "msgpack", "zip"])
 def test_lod_counts_are_exact(qem, bunny, local_pm, fmt):
     # float32 files round positions; msgpack quantises them to the split stream's grid.
     tolerance = 0.5 * grid_for(local_pm).step + 1e-9 if fmt == "msgpack" else 1e-6

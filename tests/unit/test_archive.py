@@ -3,27 +3,16 @@ outside it."""
 
 from __future__ import annotations
 
-import io
-import zipfile
-
 import pytest
 
 import qem_core
-from qem_core.codecs.archive import ArchiveLimits, ArchiveTooLarge, open_archive
+from qem_core.codecs.archive import ArchiveLimits, ArchiveTooLarge, open_archive, write_archive
 
 TRIANGLE_OBJ = b"mtllib m.mtl\nusemtl red\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4 3\n"
 
 
-def _zip(members: dict[str, bytes]) -> bytes:
-    out = io.BytesIO()
-    with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as archive:
-        for name, data in members.items():
-            archive.writestr(name, data)
-    return out.getvalue()
-
-
 def test_names_resolve_inside_the_archive_only():
-    data = _zip({
+    data = write_archive({
         "model/a.obj": TRIANGLE_OBJ,
         "model/m.mtl": b"newmtl red\nKd 1 0 0\n",
         "secret.txt": b"not for the model",
@@ -39,13 +28,14 @@ def test_names_resolve_inside_the_archive_only():
 
 
 def test_load_mesh_reads_a_zip_by_name_or_content():
-    data = _zip({"a.obj": TRIANGLE_OBJ, "m.mtl": b"newmtl red\nKd 1 0 0\nnewmtl blue\nKd 0 0 1\n"})
+    mtl = b"newmtl red\nKd 1 0 0\nnewmtl blue\nKd 0 0 1\n"
+    data = write_archive({"a.obj": TRIANGLE_OBJ, "m.mtl": mtl})
     for mesh in (qem_core.load_mesh(data), qem_core.load_mesh(data, format="zip")):
         assert mesh.name == "a.obj" and mesh.n_faces == 2
 
 
 def test_a_member_that_inflates_past_its_declared_size_is_refused():
-    data = bytearray(_zip({"a.obj": TRIANGLE_OBJ * 100}))
+    data = bytearray(write_archive({"a.obj": TRIANGLE_OBJ * 100}))
     # Lower the uncompressed size in the central directory (the local header is not
     # read for it): the member then inflates past what the archive declared.
     at = data.rfind(b"PK\x01\x02")
@@ -57,7 +47,7 @@ def test_a_member_that_inflates_past_its_declared_size_is_refused():
 
 
 def test_the_limits_are_checked_before_anything_is_read():
-    data = _zip({f"{i}.png": b"x" for i in range(5)} | {"a.obj": TRIANGLE_OBJ})
+    data = write_archive({f"{i}.png": b"x" for i in range(5)} | {"a.obj": TRIANGLE_OBJ})
     with pytest.raises(ArchiveTooLarge, match="6 members"):
         open_archive(data, ArchiveLimits(max_members=5))
     with pytest.raises(ArchiveTooLarge, match="inflates to over 10 bytes"):
@@ -65,7 +55,7 @@ def test_the_limits_are_checked_before_anything_is_read():
 
 
 def test_an_encrypted_member_is_refused():
-    data = bytearray(_zip({"a.obj": TRIANGLE_OBJ}))
+    data = bytearray(write_archive({"a.obj": TRIANGLE_OBJ}))
     at = data.rfind(b"PK\x01\x02")
     data[at + 8] |= 1  # the central directory's "encrypted" flag
     with pytest.raises(qem_core.MeshFormatError, match="encrypted"):
@@ -109,7 +99,7 @@ def _directory_past_its_place(data: bytearray) -> None:  # member offsets go neg
 def test_what_zipfile_raises_on_damaged_archives_is_a_refusal(damage, words):
     """Found by fuzz/ (zip target): IndexError, NotImplementedError, UnicodeDecodeError
     and ValueError from zipfile itself."""
-    data = bytearray(_zip({"a.obj": TRIANGLE_OBJ}))
+    data = bytearray(write_archive({"a.obj": TRIANGLE_OBJ}))
     damage(data)
     with pytest.raises(qem_core.MeshFormatError, match=words):
         qem_core.load_mesh(bytes(data), format="zip")

@@ -24,6 +24,7 @@ went away (a closed pipe, as ``qem ls | head -1``).
 from __future__ import annotations
 
 import argparse
+import ipaddress
 import logging
 import os
 import sys
@@ -116,9 +117,24 @@ def add_serve(subparsers: argparse._SubParsersAction) -> None:
         help="upload the demo mesh (spot) on start when the storage holds no mesh",
     )
     parser.add_argument(
+        "--allow-anonymous-writes",
+        action="store_true",
+        help="listen on an address other than loopback without write tokens "
+        "(QEM_ALLOW_ANONYMOUS_WRITES); else set QEM_TOKENS",
+    )
+    parser.add_argument(
         "--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"]
     )
     parser.set_defaults(run=cmd_serve)
+
+
+def _is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:  # a host name: it may resolve to anything
+        return False
 
 
 def _find_demo_mesh() -> Path | None:
@@ -142,6 +158,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
         overrides["data_dir"] = args.data_dir
     if args.workers is not None:
         overrides["workers"] = args.workers
+    if args.allow_anonymous_writes:
+        overrides["allow_anonymous_writes"] = True
     if args.demo:
         demo = _find_demo_mesh()
         if demo is None:
@@ -158,6 +176,14 @@ def cmd_serve(args: argparse.Namespace) -> int:
             f"{'.'.join(str(p) for p in error['loc'])}: {error['msg']}" for error in exc.errors()
         )
         raise CliError(f"invalid settings: {problems}", EXIT_USAGE) from None
+    if not settings.tokens and not settings.allow_anonymous_writes and not _is_loopback(args.host):
+        raise CliError(
+            f"--host {args.host} is reachable from other machines, and without write tokens "
+            "anyone there could upload and delete meshes: set QEM_TOKENS (comma-separated, "
+            "16+ characters each), or pass --allow-anonymous-writes "
+            "(QEM_ALLOW_ANONYMOUS_WRITES=true) on a network you trust",
+            EXIT_USAGE,
+        )
     uvicorn.run(
         create_app(settings),
         host=args.host,

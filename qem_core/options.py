@@ -12,7 +12,13 @@ import numpy as np
 
 from .errors import InvalidOptionsError
 
-__all__ = ["BuildOptions", "WEIGHTING_CODES", "WEIGHTING_AREA_EXPONENTS", "ERROR_MODE_CODES"]
+__all__ = [
+    "BuildOptions",
+    "ERROR_MODE_CODES",
+    "NUMBER_RANGES",
+    "WEIGHTING_AREA_EXPONENTS",
+    "WEIGHTING_CODES",
+]
 
 Weighting = Literal["none", "sqrt_area", "area", "volume"]
 ErrorMode = Literal["additive", "exact"]
@@ -138,7 +144,7 @@ class BuildOptions:
             raise InvalidOptionsError(
                 f"error_mode={self.error_mode!r} is not one of {sorted(ERROR_MODE_CODES)}"
             )
-        for name, low, high in _NUMBER_RANGES:
+        for name, low, high in NUMBER_RANGES:
             # Stored as a Python float: numpy scalars are accepted, and the options
             # stay JSON-serialisable (the server keeps them in its metadata).
             object.__setattr__(self, name, _checked_number(name, getattr(self, name), low, high))
@@ -163,7 +169,8 @@ class BuildOptions:
         return asdict(self)
 
 
-_NUMBER_RANGES = (
+# The range of each numeric option (inclusive); the HTTP API's schema states them too.
+NUMBER_RANGES = (
     ("boundary_weight", 0.0, 1e6),
     ("distance_weight", 0.0, 1e6),
     ("volume_weight", 0.0, 1e6),

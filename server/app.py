@@ -98,4 +98,20 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(health.router)
     app.include_router(meshes.router)
     mount_viewer(app, settings.web_dir)
+    if not settings.tokens:
+        documented = app.openapi  # the problems' document (problems.py), then this
+        app.openapi = lambda: _without_write_tokens(documented())
     return app
+
+
+def _without_write_tokens(document: dict) -> dict:
+    """The OpenAPI document of a server whose writes are open (no QEM_TOKENS): the
+    bearer scheme the write routes declare is not required, so the document says none."""
+    for operations in document.get("paths", {}).values():
+        for operation in operations.values():
+            if isinstance(operation, dict):
+                operation.pop("security", None)
+                operation.get("responses", {}).pop("401", None)
+                operation.get("responses", {}).pop("403", None)
+    document.get("components", {}).pop("securitySchemes", None)
+    return document

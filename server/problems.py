@@ -27,6 +27,7 @@ from fastapi.openapi.utils import get_openapi
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match
 
 import qem_core
 
@@ -187,7 +188,24 @@ async def _on_http_exception(request: Request, exc: StarletteHTTPException) -> J
     detail = exc.detail if isinstance(exc.detail, str) else title
     if status == 404 and detail == title:
         detail = f"nothing at {request.url.path}; the API is under /v1 (see /docs)"
-    return problem_response(request, status=status, title=title, detail=detail, headers=exc.headers)
+    headers = exc.headers
+    if status == 405:
+        # Starlette names the methods of the first route whose path matched; a path served
+        # by several routes (GET and DELETE of a mesh) takes all of theirs.
+        headers = {**(headers or {}), "Allow": ", ".join(_allowed_methods(request))}
+    return problem_response(request, status=status, title=title, detail=detail, headers=headers)
+
+
+def _allowed_methods(request: Request) -> list[str]:
+    methods: set[str] = set()
+    for route in request.app.routes:
+        match, _ = route.matches({**request.scope, "method": "GET"})
+        route_methods = getattr(route, "methods", None)
+        if match != Match.NONE and route_methods:
+            methods |= set(route_methods)
+    if "GET" in methods:
+        methods.add("HEAD")  # answered as GET (head_requests.py)
+    return sorted(methods)
 
 
 async def _on_unexpected(request: Request, exc: Exception) -> JSONResponse:

@@ -10,10 +10,13 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, create_model
 
 from qem_core import BuildOptions
+from qem_core.options import NUMBER_RANGES
 
 from .storage import MeshRecord
 
 __all__ = [
+    "FILE_NAME_PATTERN",
+    "UPLOAD_EXTENSIONS",
     "LOD_FORMATS",
     "Health",
     "MeshInfo",
@@ -22,6 +25,23 @@ __all__ = [
     "UploadParams",
     "mesh_info",
 ]
+
+# The extensions an upload's name may end in (any case); a name without a dot after its
+# last slash is accepted too, its format then guessed from the content.
+UPLOAD_EXTENSIONS = ("ply", "obj", "stl", "off", "glb", "zip")
+
+
+def _any_case(word: str) -> str:
+    return "".join(f"[{c.lower()}{c.upper()}]" for c in word)
+
+
+# The rule as a pattern both the OpenAPI document and the server apply (ECMA and Python
+# regular expressions agree on it: no flags, no lookaround).
+FILE_NAME_PATTERN = (
+    r"^(?:.*[/\\])?(?:[^/\\.]*|[^/\\]*\.(?:"
+    + "|".join(map(_any_case, UPLOAD_EXTENSIONS))
+    + r")[ ]*)$"  # trailing spaces are stripped from the name kept
+)
 
 LodFormat = Literal["ply", "obj", "glb", "msgpack", "zip"]
 LOD_FORMATS: tuple[str, ...] = typing.get_args(LodFormat)
@@ -72,15 +92,25 @@ def _upload_param_fields() -> dict[str, Any]:
             Field(
                 None,
                 max_length=255,
+                # Documented, and checked by uploads.check_file_name (a 415 that says
+                # what to do, rather than a 422 quoting the pattern).
+                json_schema_extra={"pattern": FILE_NAME_PATTERN},
                 description="file name of a raw-body upload (its extension gives the "
-                "format); overrides the multipart file name",
+                "format: .ply .obj .stl .off .glb .zip, any case; a name without a dot is "
+                "guessed from the content); overrides the multipart file name",
             ),
         )
     }
+    # Ranges documented; BuildOptions checks them (its message names the option's range).
+    ranges = {name: {"minimum": low, "maximum": high} for name, low, high in NUMBER_RANGES}
     for option in dataclasses.fields(BuildOptions):
         fields[option.name] = (
             hints[option.name] | None,
-            Field(None, description=f"build option (default {option.default!r})"),
+            Field(
+                None,
+                description=f"build option (default {option.default!r})",
+                json_schema_extra=ranges.get(option.name),
+            ),
         )
     return fields
 

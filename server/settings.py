@@ -51,6 +51,9 @@ class Settings(BaseSettings):
     max_upload_bytes : uploads larger than this are refused with 413 (default 512 MiB).
     tokens : bearer tokens allowed to write (upload, delete), comma-separated in
         ``QEM_TOKENS``; empty means writes are open. Reads are always public.
+    allow_anonymous_writes : let ``qem serve`` listen on an address other than loopback
+        with no tokens (anyone who reaches it may upload and delete); off, it refuses to
+        start so.
     workers : number of build worker processes.
     mesh_cache_size : how many loaded progressive meshes stay in memory.
     lod_cache_bytes : memory budget of encoded levels kept for repeated requests.
@@ -82,6 +85,7 @@ class Settings(BaseSettings):
     data_dir: Path = Path("data")
     max_upload_bytes: int = Field(512 * 2**20, ge=1, le=64 * 2**30)
     tokens: Annotated[tuple[str, ...], NoDecode] = Field((), repr=False)
+    allow_anonymous_writes: bool = False
     workers: int = Field(default_factory=_default_workers, ge=1, le=64)
     mesh_cache_size: int = Field(8, ge=1, le=1024)
     lod_cache_bytes: int = Field(256 * 2**20, ge=0, le=64 * 2**30)

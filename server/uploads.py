@@ -25,27 +25,19 @@ from python_multipart.multipart import MultipartParser, parse_options_header
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import ClientDisconnect, Request
 
-from qem_core import MeshFormatError
-from qem_core.codecs.archive import ArchiveTooLarge, check_archive
-
 from .jobs import JobQueue
 from .problems import Problem
+from .schemas import FILE_NAME_PATTERN, UPLOAD_EXTENSIONS
 from .storage import BlobWriter, MeshRecord, Storage, new_mesh_id, upload_key
 
 __all__ = [
-    "MESH_EXTENSIONS",
     "check_file_name",
-    "check_uploaded_archive",
     "import_file",
     "receive_upload",
     "register_upload",
 ]
 
 log = logging.getLogger("qem.server")
-
-# File name extension -> format of qem_core.codecs.load_mesh.
-MESH_EXTENSIONS = {".ply": "ply", ".obj": "obj", ".stl": "stl", ".off": "off", ".glb": "glb",
-                   ".zip": "zip"}  # fmt: skip
 
 _FIELD = "file"
 _BUFFER = 1 << 20  # write to storage in pieces of about this size
@@ -63,24 +55,28 @@ def _is_shown(character: str) -> bool:
     return not unicodedata.category(character).startswith("C")
 
 
-def check_file_name(name: str | None) -> str | None:
+def check_file_name(name: str | None, *, strict: bool = True) -> str | None:
     """The base name of an uploaded file's name, cleaned for display and storage in the
-    record; raises a 415 problem if its extension names a format that cannot be read.
+    record (None when nothing is left of it).
 
-    A name without an extension is accepted: the worker then guesses from the content."""
+    strict (``?name=``, which the OpenAPI document constrains): a 415 problem unless the
+    name ends in a readable format's extension or has no dot after its last slash (the
+    worker then guesses from the content): `schemas.FILE_NAME_PATTERN`. A multipart file
+    name, which the document cannot constrain, is kept whatever it ends in, and the build
+    goes by the content when its extension is not a mesh format's."""
     if name is None:
         return None
+    if strict and not re.fullmatch(FILE_NAME_PATTERN, name):
+        raise Problem(
+            "unsupported-format",
+            f"cannot read {name!r}: the name must end in "
+            f"{', '.join('.' + e for e in UPLOAD_EXTENSIONS)} (any case), or have no "
+            "extension for the format to be guessed from the content",
+        )
     base = PurePosixPath(name.replace("\\", "/")).name
     base = "".join(filter(_is_shown, base)).strip()[:255]
     if base in ("", ".", ".."):
         return None
-    suffix = Path(base).suffix.lower()
-    if suffix and suffix not in MESH_EXTENSIONS:
-        raise Problem(
-            "unsupported-format",
-            f"cannot read {suffix!r} files ({base!r}); upload one of "
-            f"{', '.join(sorted(MESH_EXTENSIONS))}",
-        )
     return base
 
 
@@ -263,20 +259,6 @@ async def _receive_multipart(request: Request, content_type: str, sink: _Sink) -
             f"-F {_FIELD}=@mesh.ply, or as the raw body with ?name=mesh.ply",
         )
     return state.filename
-
-
-def check_uploaded_archive(storage: Storage, key: str) -> None:
-    """Refuse an uploaded zip archive at once (400, or 413 for one that would inflate
-    past the limits), before a build is queued for it: its member names, links, sizes and
-    compression ratios, and that it holds exactly one model (qem_core's archive checks,
-    which read no member). The refused blob is removed."""
-    try:
-        with storage.blobs.local_path(key) as path:
-            check_archive(path)
-    except MeshFormatError as error:
-        storage.blobs.delete(key)
-        kind = "upload-too-large" if isinstance(error, ArchiveTooLarge) else "bad-upload"
-        raise Problem(kind, f"the zip archive is refused: {error}") from None
 
 
 def register_upload(

@@ -15,7 +15,6 @@ inside the archive, never outside it.
 from __future__ import annotations
 
 import io
-import os
 import posixpath
 import stat
 import zipfile
@@ -29,7 +28,6 @@ __all__ = [
     "ArchiveLimits",
     "ArchiveTooLarge",
     "MODEL_SUFFIXES",
-    "check_archive",
     "is_zip",
     "open_archive",
     "write_archive",
@@ -94,13 +92,6 @@ def open_archive(
     model, members = _checked_members(archive, limits)
     files = ArchiveFiles(archive, posixpath.dirname(model), members)
     return model, _read_member(archive, members[model]), files
-
-
-def check_archive(path: str | os.PathLike, limits: ArchiveLimits = ArchiveLimits()) -> str:
-    """The model's name in the zip archive at ``path``, after every check `open_archive`
-    makes before reading (no member is read: an upload is checked at once)."""
-    with open(path, "rb") as file:
-        return _checked_members(_zip(file), limits)[0]
 
 
 def _zip(file) -> zipfile.ZipFile:

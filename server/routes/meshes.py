@@ -51,7 +51,6 @@ from ..schemas import (
 from ..storage import MeshRecord, new_mesh_id, upload_key
 from ..uploads import (
     check_file_name,
-    check_uploaded_archive,
     receive_upload,
     register_upload,
 )
@@ -71,11 +70,14 @@ _UPLOAD_BODY = {
         "multipart/form-data": {
             "schema": {
                 "type": "object",
-                "properties": {"file": {"type": "string", "format": "binary"}},
+                "properties": {"file": {"type": "string", "format": "binary", "minLength": 1}},
                 "required": ["file"],
             }
         },
-        "application/octet-stream": {"schema": {"type": "string", "format": "binary"}},
+        # An empty file is refused (400): no mesh is empty.
+        "application/octet-stream": {
+            "schema": {"type": "string", "format": "binary", "minLength": 1}
+        },
     },
 }
 
@@ -174,13 +176,11 @@ async def upload_mesh(
     try:
         given_name = await receive_upload(request, writer, settings.max_upload_bytes)
         if name is None:
-            name = check_file_name(given_name)
+            name = check_file_name(given_name, strict=False)
         await run_in_threadpool(writer.commit)
     except BaseException:
         await run_in_threadpool(writer.abort)
         raise
-    if name is not None and name.lower().endswith(".zip"):
-        await run_in_threadpool(check_uploaded_archive, storage, upload_key(mesh_id))
     record = await run_in_threadpool(
         lambda: register_upload(
             storage,

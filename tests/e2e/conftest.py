@@ -23,7 +23,7 @@ from client.http import QemClient
 REPO = Path(__file__).resolve().parents[2]
 SHARED_MESHES = REPO.parent / "shared" / "meshes"
 STARTUP_TIMEOUT = 120.0
-_RUNNING = re.compile(r"Uvicorn running on (http://127\.0\.0\.1:\d+)")
+_RUNNING = re.compile(r"Uvicorn running on http://([\d.]+):(\d+)")
 
 
 def shared_mesh(name: str) -> Path:
@@ -103,7 +103,9 @@ class ServerProcess:
             self.log_lines.append(line)
             match = _RUNNING.search(line)
             if match:
-                self.url = match.group(1)
+                # A server on every address (0.0.0.0) is reached on loopback.
+                host = "127.0.0.1" if match.group(1) == "0.0.0.0" else match.group(1)
+                self.url = f"http://{host}:{match.group(2)}"
                 self._started.set()
         self._started.set()  # exited: do not make start() wait for nothing
 

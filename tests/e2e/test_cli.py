@@ -194,3 +194,23 @@ def test_serve_demo_loads_textured_spot(start_server, tmp_path):
         media_type, image = client.texture(record["id"])
     assert media_type == "image/png"
     assert image == qem_core.load_mesh(REPO / "server" / "demo" / "spot.glb").texture
+
+
+def test_serve_refuses_an_open_address_without_tokens(tmp_path):
+    """Anyone who reaches a server without QEM_TOKENS may upload and delete: on an address
+    other than loopback ``qem serve`` says so and does not start."""
+    for host in ("0.0.0.0", "::", "192.0.2.7", "example.org"):
+        result = qem("serve", "--host", host, "--port", "0", "--data-dir", str(tmp_path / "d"),
+                     cwd=tmp_path)  # fmt: skip
+        assert_clean_failure(result, 2, f"--host {host}", "QEM_TOKENS", "--allow-anonymous-writes")
+
+
+def test_serve_listens_on_an_open_address_with_tokens_or_when_told(start_server, tmp_path):
+    for name, env, args in (
+        ("tokens", {"QEM_TOKENS": TOKEN}, ()),
+        ("flag", None, ("--allow-anonymous-writes",)),
+        ("variable", {"QEM_ALLOW_ANONYMOUS_WRITES": "true"}, ()),
+    ):
+        server = start_server(env=env, data_dir=tmp_path / name, args=("--host", "0.0.0.0", *args))
+        with server.client() as client:
+            assert client.list() == []

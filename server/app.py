@@ -23,6 +23,7 @@ from . import __version__
 from .head_requests import HeadAsGet
 from .jobs import JobQueue, open_jobs
 from .memory_answers import MemoryAnswers
+from .metrics import Metrics, RequestMetrics
 from .problems import install_problem_handlers
 from .read_path import ReadPath
 from .routes import health, meshes
@@ -40,12 +41,13 @@ _EXPOSED_HEADERS = sorted(
 )
 
 
-def _start(settings: Settings) -> tuple[Storage, JobQueue]:
+def _start(settings: Settings, metrics: Metrics) -> tuple[Storage, JobQueue]:
     settings.data_dir.mkdir(parents=True, exist_ok=True)
     storage = open_storage(settings)
     try:
         storage.collect_garbage()
         jobs = open_jobs(settings, storage)
+        jobs.on_finished = metrics.build_finished
         jobs.start()
     except BaseException:
         storage.close()
@@ -60,17 +62,20 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     """A new app serving the storage described by `settings` (default: `get_settings()`,
     read from the environment)."""
     settings = settings or get_settings()
+    metrics = Metrics()
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        storage, jobs = await run_in_threadpool(_start, settings)
+        storage, jobs = await run_in_threadpool(_start, settings, metrics)
         app.state.storage = storage
         app.state.jobs = jobs
         app.state.reads = ReadPath(storage, settings)
+        metrics.watch(storage.metadata.status_counts, app.state.reads.cache_stats)
         log.info("serving %s (%d worker(s))", settings.data_dir, settings.workers)
         try:
             yield
         finally:
+            metrics.unwatch()
             await run_in_threadpool(jobs.close)
             storage.close()
 
@@ -84,6 +89,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         lifespan=lifespan,
     )
     app.state.settings = settings
+    app.state.metrics = metrics
     install_problem_handlers(app)
     app.add_middleware(HeadAsGet)
     app.add_middleware(
@@ -94,7 +100,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         expose_headers=_EXPOSED_HEADERS,
         max_age=86400,
     )
-    app.add_middleware(MemoryAnswers)  # outermost: plain GETs of what is in memory
+    app.add_middleware(MemoryAnswers)  # plain GETs of what is in memory
+    app.add_middleware(RequestMetrics, metrics=metrics)  # outermost: counts them all
     app.include_router(health.router)
     app.include_router(meshes.router)
     mount_viewer(app, settings.web_dir)

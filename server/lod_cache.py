@@ -11,7 +11,7 @@ from __future__ import annotations
 import qem_core
 from qem_core.levels import EncodedLevel, encode_level
 
-from .lru import LruCache
+from .lru import CacheStats, LruCache
 from .storage import MeshRecord, Storage
 
 __all__ = ["LodCache"]
@@ -53,6 +53,9 @@ class LodCache:
         encoded = encode_level(self.progressive_mesh(record), n_vertices, format)
         self._lods.put(key, encoded)
         return encoded
+
+    def cache_stats(self) -> dict[str, CacheStats]:
+        return {"meshes": self._meshes.stats(), "levels": self._lods.stats()}
 
     def evict(self, record: MeshRecord) -> None:
         """Forget everything cached for `record` (after it was deleted)."""

@@ -13,12 +13,25 @@ from __future__ import annotations
 import threading
 from collections import OrderedDict
 from collections.abc import Callable, Hashable
+from dataclasses import dataclass
 from typing import Generic, TypeVar
 
-__all__ = ["LruCache"]
+__all__ = ["CacheStats", "LruCache"]
 
 K = TypeVar("K", bound=Hashable)
 V = TypeVar("V")
+
+
+@dataclass(frozen=True)
+class CacheStats:
+    """entries and bytes (or count) held; hits: lookups that found their value; misses:
+    values that had to be loaded or made and were put in (what the cache saved is hits)."""
+
+    entries: int
+    used: int
+    budget: int
+    hits: int
+    misses: int
 
 
 class LruCache(Generic[K, V]):
@@ -38,6 +51,14 @@ class LruCache(Generic[K, V]):
         self._entries: OrderedDict[K, V] = OrderedDict()
         self._used = 0
         self._loading: dict[K, threading.Lock] = {}
+        self._hits = 0
+        self._misses = 0
+
+    def stats(self) -> CacheStats:
+        with self._lock:
+            return CacheStats(
+                len(self._entries), self._used, self._budget, self._hits, self._misses
+            )
 
     def peek(self, key: K) -> V | None:
         """The value if present (marked as used), else None; never blocks on a load."""
@@ -45,6 +66,7 @@ class LruCache(Generic[K, V]):
             value = self._entries.get(key)
             if value is not None:
                 self._entries.move_to_end(key)
+                self._hits += 1
             return value
 
     def get(self, key: K, load: Callable[[], V]) -> V:
@@ -70,10 +92,13 @@ class LruCache(Generic[K, V]):
     def put(self, key: K, value: V) -> None:
         size = self._size(value)
         if size > self._max_entry:
+            with self._lock:
+                self._misses += 1  # made, handed out, not kept
             return
         with self._lock:
             if key in self._entries:
                 return
+            self._misses += 1
             self._entries[key] = value
             self._used += size
             while self._used > self._budget and self._entries:

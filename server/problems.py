@@ -63,6 +63,7 @@ PROBLEM_KINDS: dict[str, tuple[int, str]] = {
     "invalid-options": (422, "Invalid build options"),
     "corrupt-data": (500, "Stored data is damaged"),
     "internal-error": (500, "Internal server error"),
+    "not-ready": (503, "A part the service needs is not answering"),
 }
 
 # qem_core exception -> kind; the nearest class in the exception's MRO wins.

@@ -13,7 +13,7 @@ from __future__ import annotations
 import threading
 
 from .lod_cache import LodCache
-from .lru import LruCache
+from .lru import CacheStats, LruCache
 from .settings import Settings
 from .storage import MeshRecord, Storage
 from .stored_streams import StreamCache
@@ -46,6 +46,14 @@ class ReadPath:
                 if self._deleted.peek(mesh_id) is None:
                     self._ready.put(mesh_id, record)
         return record
+
+    def cache_stats(self) -> dict[str, CacheStats]:
+        """Each in-memory cache of the read path by name (for /metrics)."""
+        return {
+            "records": self._ready.stats(),
+            **self.levels.cache_stats(),
+            **self.streams.cache_stats(),
+        }
 
     def evict(self, record: MeshRecord) -> None:
         """Forget everything of a deleted mesh."""

@@ -22,7 +22,7 @@ from qem_core import CorruptFileError
 from qem_core.stored_stream import StreamIndex, encode_stored_stream
 
 from .lod_cache import LodCache
-from .lru import LruCache
+from .lru import CacheStats, LruCache
 from .storage import BlobStore, MeshRecord, Storage, stream_index_key, stream_key
 
 __all__ = ["StoredStream", "StreamCache", "write_stream"]
@@ -74,6 +74,9 @@ class StreamCache:
         if qpm is None:
             raise FileNotFoundError(f"mesh {record.id} has no progressive mesh yet")
         return self._streams.get(qpm, lambda: self._load(record, qpm))
+
+    def cache_stats(self) -> dict[str, CacheStats]:
+        return {"streams": self._streams.stats()}
 
     def evict(self, record: MeshRecord) -> None:
         self._streams.drop(lambda key: key == record.qpm_key)

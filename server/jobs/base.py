@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import abc
 import logging
+from collections.abc import Callable
 
 from ..settings import Settings
 from ..storage import Storage
@@ -24,6 +25,9 @@ class JobQueue(abc.ABC):
     def __init__(self, settings: Settings, storage: Storage) -> None:
         self.settings = settings
         self.storage = storage
+        # Told each build's outcome ("ready", "failed", "skipped") and its seconds, from a
+        # thread of the queue's (the server's metrics).
+        self.on_finished: Callable[[str, float], None] | None = None
 
     @classmethod
     def from_settings(cls, settings: Settings, storage: Storage) -> JobQueue:

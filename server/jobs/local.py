@@ -85,11 +85,13 @@ def _exit_when_orphaned() -> None:
     os._exit(0)
 
 
-def _build_in_worker(mesh_id: str) -> str:
+def _build_in_worker(mesh_id: str) -> tuple[str, float]:
+    """The build's outcome and its seconds."""
     assert _worker_storage is not None and _worker_settings is not None
     _worker_idle.clear()
+    started = time.monotonic()
     try:
-        return run_build(
+        outcome = run_build(
             _worker_storage,
             mesh_id,
             progress_interval=_worker_settings.progress_interval_s,
@@ -97,6 +99,7 @@ def _build_in_worker(mesh_id: str) -> str:
             store_stream=_worker_settings.stream_at_build,
             should_abort=_parent_is_gone,
         )
+        return outcome, time.monotonic() - started
     finally:
         _worker_idle.set()
 
@@ -154,6 +157,8 @@ class LocalJobQueue(JobQueue):
             return
         error = future.exception()
         if error is None:
+            if self.on_finished is not None:
+                self.on_finished(*future.result())
             return
         if isinstance(error, BrokenProcessPool):
             self._replace_broken_pool(generation, f"building mesh {mesh_id}")

@@ -109,6 +109,14 @@ class MetadataStore(abc.ABC):
         """All records, oldest first."""
 
     @abc.abstractmethod
+    def ping(self) -> None:
+        """Raise (OSError, the driver's error) unless the database answers a query."""
+
+    @abc.abstractmethod
+    def status_counts(self) -> dict[str, int]:
+        """How many meshes are in each status (queued, building, ready, failed)."""
+
+    @abc.abstractmethod
     def count(self) -> int:
         """Number of records."""
 
@@ -185,6 +193,10 @@ class BlobWriter(abc.ABC):
 
 class BlobStore(abc.ABC):
     """Opaque byte blobs under slash-separated keys (``uploads/<id>``)."""
+
+    @abc.abstractmethod
+    def ping(self) -> None:
+        """Raise (OSError, the client's error) unless the store can be written."""
 
     @abc.abstractmethod
     def writer(self, key: str) -> BlobWriter:

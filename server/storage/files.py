@@ -93,6 +93,13 @@ class LocalBlobStore(BlobStore):
                 if key.startswith(prefix):
                     yield key
 
+    def ping(self) -> None:
+        # Its staging folder is where every write starts: gone or read-only, none can.
+        if not self._tmp.is_dir():
+            raise FileNotFoundError(f"the blob store's folder {self._tmp} is missing")
+        if not os.access(self._tmp, os.W_OK | os.X_OK):
+            raise PermissionError(f"the blob store's folder {self._tmp} is not writable")
+
     def sweep(self) -> int:
         removed = 0
         for leftover in self._tmp.iterdir():

@@ -115,6 +115,15 @@ class SqliteMetadataStore(MetadataStore):
     def records(self) -> list[MeshRecord]:
         return self._query(f"SELECT {', '.join(_COLUMNS)} FROM meshes ORDER BY created_at, id")
 
+    def ping(self) -> None:
+        with self._lock:
+            self._db.execute("SELECT 1 FROM meshes LIMIT 1").fetchall()
+
+    def status_counts(self) -> dict[str, int]:
+        with self._lock:
+            rows = self._db.execute("SELECT status, COUNT(*) FROM meshes GROUP BY status")
+            return {status: int(n) for status, n in rows.fetchall()}
+
     def count(self) -> int:
         with self._lock:
             return int(self._db.execute("SELECT COUNT(*) FROM meshes").fetchone()[0])

@@ -463,3 +463,58 @@ def test_root_serves_the_viewer_folder(tmp_path):
 def test_root_lists_meshes_without_a_viewer(client, sphere):
     page = client.get("/")
     assert page.status_code == 200 and "sphere.ply" in page.text
+
+
+def test_readyz_names_the_part_that_does_not_answer(tmp_path, monkeypatch):
+    with make_client(tmp_path) as client:
+        assert client.get("/readyz").status_code == 200
+        storage = client.app.state.storage
+        staging = storage.blobs.root / ".tmp"
+        staging.rename(tmp_path / "moved")  # the store's folder gone: no write can start
+        answer = client.get("/readyz")
+        assert answer.status_code == 503 and answer.headers["Retry-After"] == "5"
+        body = answer.json()
+        assert body["type"] == "/problems/not-ready" and body["part"] == "blob store"
+        assert "is missing" in body["detail"]
+        (tmp_path / "moved").rename(staging)
+        assert client.get("/readyz").status_code == 200
+
+        def unreachable() -> None:
+            raise OSError("connection refused")
+
+        monkeypatch.setattr(storage.metadata, "ping", unreachable)
+        body = client.get("/readyz").json()
+        assert body["status"] == 503 and body["part"] == "database"
+        assert body["detail"] == "the database does not answer: OSError: connection refused"
+        assert client.get("/healthz").status_code == 200  # alive, only not ready
+
+
+def test_metrics_count_requests_builds_and_caches(client, sphere):
+    url = f"/v1/meshes/{sphere['id']}/lod"
+    for _ in range(3):
+        assert client.get(url, params={"vertices": 50}).status_code == 200
+    assert client.get("/v1/meshes/nothing-here").status_code == 404
+    answer = client.get("/metrics")
+    assert answer.status_code == 200 and answer.headers["content-type"].startswith("text/plain")
+    text = answer.text
+
+    def value(line_start: str) -> float:
+        lines = [line for line in text.splitlines() if line.startswith(line_start)]
+        assert lines, f"no {line_start!r} in:\n{text}"
+        return float(lines[0].rsplit(" ", 1)[1])
+
+    # Route templates, not ids: one series for every mesh's levels.
+    lod = 'qem_http_requests_total{method="GET",route="/v1/meshes/{id}/lod",status="200"}'
+    assert value(lod) >= 3
+    missing = 'qem_http_requests_total{method="GET",route="/v1/meshes/{id}",status="404"}'
+    assert value(missing) >= 1
+    assert sphere["id"] not in text
+    count = 'qem_http_request_duration_seconds_count{method="GET",route="/v1/meshes/{id}/lod"}'
+    assert value(count) >= 3
+    assert value('qem_meshes{status="ready"}') >= 1
+    assert value('qem_builds_finished_total{outcome="ready"}') >= 1
+    assert value('qem_build_duration_seconds_count{outcome="ready"}') >= 1
+    # The level was made once and found twice after.
+    assert value('qem_cache_misses_total{cache="levels"}') >= 1
+    assert value('qem_cache_hits_total{cache="levels"}') >= 2
+    assert value('qem_cache_used{cache="levels"}') > 0

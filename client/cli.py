@@ -125,6 +125,10 @@ def add_serve(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"]
     )
+    parser.add_argument(
+        "--log-format", choices=["text", "json"],
+        help="json: one object a line, for a log collector (QEM_LOG_FORMAT; default text)",
+    )  # fmt: skip
     parser.set_defaults(run=cmd_serve)
 
 
@@ -150,9 +154,10 @@ def cmd_serve(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
     from server.app import create_app
+    from server.request_log import configure_logging
     from server.settings import Settings
 
-    logging.basicConfig(level=args.log_level.upper(), format="%(levelname)s: %(name)s: %(message)s")
+    configure_logging(args.log_level, args.log_format or "text")
     overrides: dict[str, Any] = {}
     if args.data_dir is not None:
         overrides["data_dir"] = args.data_dir
@@ -160,6 +165,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
         overrides["workers"] = args.workers
     if args.allow_anonymous_writes:
         overrides["allow_anonymous_writes"] = True
+    if args.log_format is not None:
+        overrides["log_format"] = args.log_format
     if args.demo:
         demo = _find_demo_mesh()
         if demo is None:
@@ -176,6 +183,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
             f"{'.'.join(str(p) for p in error['loc'])}: {error['msg']}" for error in exc.errors()
         )
         raise CliError(f"invalid settings: {problems}", EXIT_USAGE) from None
+    configure_logging(args.log_level, settings.log_format)
     if not settings.tokens and not settings.allow_anonymous_writes and not _is_loopback(args.host):
         raise CliError(
             f"--host {args.host} is reachable from other machines, and without write tokens "
@@ -189,6 +197,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         host=args.host,
         port=args.port,
         log_level=args.log_level,
+        log_config=None,  # uvicorn's lines go through configure_logging's handler
         timeout_graceful_shutdown=5,
     )
     return EXIT_OK

@@ -26,6 +26,7 @@ from .memory_answers import MemoryAnswers
 from .metrics import Metrics, RequestMetrics
 from .problems import install_problem_handlers
 from .read_path import ReadPath
+from .request_log import RequestIds
 from .routes import health, meshes
 from .routes.viewer import mount_viewer
 from .settings import Settings, get_settings
@@ -101,7 +102,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         max_age=86400,
     )
     app.add_middleware(MemoryAnswers)  # plain GETs of what is in memory
-    app.add_middleware(RequestMetrics, metrics=metrics)  # outermost: counts them all
+    app.add_middleware(RequestMetrics, metrics=metrics)  # counts them all
+    app.add_middleware(RequestIds)  # outermost: every line of a request carries its id
     app.include_router(health.router)
     app.include_router(meshes.router)
     mount_viewer(app, settings.web_dir)

@@ -14,7 +14,7 @@ import importlib
 import os
 from functools import lru_cache
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
@@ -73,6 +73,8 @@ class Settings(BaseSettings):
         largest build's peak while idle (glibc only: server.jobs.memory); 0, the default,
         leaves the C library's defaults.
     cors_allow_origins : origins allowed to GET from a browser ("*" = any).
+    log_format : "text" (a line for a person) or "json" (an object a line, for a log
+        collector); either way each line of a request carries its request id.
     web_dir : folder served at ``/`` (the web viewer); default ``client/web`` next to the
         installed package, and a plain HTML list of meshes when it does not exist.
     demo_mesh : a mesh file uploaded on start when the storage holds no mesh.
@@ -99,6 +101,7 @@ class Settings(BaseSettings):
     blob_backend: str = "local"
     jobs_backend: str = "local"
     cors_allow_origins: Annotated[tuple[str, ...], NoDecode] = ("*",)
+    log_format: Literal["text", "json"] = "text"
     web_dir: Path | None = None
     demo_mesh: Path | None = None
 

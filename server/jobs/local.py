@@ -26,6 +26,7 @@ import time
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 
+from ..request_log import configure_logging
 from ..settings import Settings
 from ..storage import Storage, open_storage
 from .base import JobQueue
@@ -50,7 +51,7 @@ _worker_idle = threading.Event()
 
 def _init_worker(settings: Settings) -> None:
     global _worker_storage, _worker_settings, _worker_parent
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s: %(name)s: %(message)s")
+    configure_logging("info", settings.log_format)
     _worker_settings = settings
     _keep_freed_memory(settings.worker_keep_memory_bytes)
     _worker_storage = open_storage(settings)

@@ -16,6 +16,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import httpx
 import numpy as np
 import pytest
 
@@ -214,3 +215,25 @@ def test_serve_listens_on_an_open_address_with_tokens_or_when_told(start_server,
         server = start_server(env=env, data_dir=tmp_path / name, args=("--host", "0.0.0.0", *args))
         with server.client() as client:
             assert client.list() == []
+
+
+def test_serve_logs_json_lines_with_the_request_id(start_server, workdir):
+    """QEM_LOG_FORMAT=json: every line, the server's and its build worker's, is one JSON
+    object; a request's lines carry its id, the client's X-Request-ID when it sends one."""
+    server = start_server(env={"QEM_LOG_FORMAT": "json"})
+    with httpx.Client(base_url=server.url, timeout=60) as http:
+        answer = http.get("/v1/meshes/nothing-here", headers={"X-Request-ID": "trace-42"})
+        assert answer.headers["X-Request-ID"] == "trace-42"
+        generated = http.get("/healthz").headers["X-Request-ID"]
+        assert len(generated) == 16
+        assert http.get("/healthz", headers={"X-Request-ID": "bad id!"}).headers[
+            "X-Request-ID"
+        ] != "bad id!"
+    result = qem("upload", "sphere.ply", cwd=workdir, server=server.url)
+    assert result.returncode == 0, result.stderr
+    server.stop()
+    entries = [json.loads(line) for line in server.log_lines if line.strip()]
+    by_id = {entry["request_id"]: entry for entry in entries}
+    assert '"GET /v1/meshes/nothing-here HTTP/1.1" 404' in by_id["trace-42"]["message"]
+    assert by_id[generated]["logger"] == "uvicorn.access"
+    assert any(entry["logger"] == "qem.jobs" for entry in entries), entries  # the worker

@@ -114,6 +114,7 @@ class LocalJobQueue(JobQueue):
         self._executor: ProcessPoolExecutor | None = None
         self._generation = 0
         self._closing = False
+        self._submitted: set[str] = set()  # ids submitted whose builds have not ended
 
     def start(self) -> None:
         with self._lock:
@@ -133,12 +134,20 @@ class LocalJobQueue(JobQueue):
                 # recover() submits this mesh again, with any other unfinished one.
                 self._replace_broken_pool(generation, f"found when submitting mesh {mesh_id}")
                 return
+            self._submitted.add(mesh_id)
         future.add_done_callback(lambda done: self._on_done(mesh_id, generation, done))
 
     def close(self) -> None:
+        """Stop: the builds running are handed back to the queue, their attempt not
+        counted (the next start, or another server's queue, takes them up), then their
+        processes are ended (their writes are fenced by the claim they no longer hold)."""
         with self._lock:
             self._closing = True
             executor, self._executor = self._executor, None
+            submitted, self._submitted = self._submitted, set()
+        for mesh_id in submitted:
+            if self.storage.metadata.release(mesh_id):
+                log.info("handed the build of mesh %s back to the queue", mesh_id)
         if executor is not None:
             _stop(executor)
 
@@ -154,6 +163,8 @@ class LocalJobQueue(JobQueue):
         )
 
     def _on_done(self, mesh_id: str, generation: int, future: Future) -> None:
+        with self._lock:
+            self._submitted.discard(mesh_id)
         if future.cancelled() or self._closing:
             return
         error = future.exception()

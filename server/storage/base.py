@@ -161,6 +161,12 @@ class MetadataStore(abc.ABC):
         """An unfinished record -> queued with no owner (attempts kept); False if the
         record is missing or finished."""
 
+    @abc.abstractmethod
+    def release(self, mesh_id: str) -> bool:
+        """Hand a building record back to the queue without counting its attempt (the
+        server stopped it on purpose: the build did nothing wrong). False if the record
+        is not building."""
+
     def close(self) -> None:  # noqa: B027 - optional hook
         """Release connections."""
 

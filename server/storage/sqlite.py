@@ -180,6 +180,14 @@ class SqliteMetadataStore(MetadataStore):
             where, params = "status = 'building' AND claim = ?", (token,)
         return self._update(mesh_id, where, params, status="failed", claim=None, error=reason)
 
+    def release(self, mesh_id: str) -> bool:
+        cursor = self._execute(
+            "UPDATE meshes SET status = 'queued', attempts = MAX(attempts - 1, 0), "
+            "claim = NULL, progress = 0, updated_at = ? WHERE id = ? AND status = 'building'",
+            (time.time(), mesh_id),
+        )
+        return cursor.rowcount == 1
+
     def requeue(self, mesh_id: str) -> bool:
         return self._update(
             mesh_id,

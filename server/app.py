@@ -93,6 +93,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.metrics = metrics
     install_problem_handlers(app)
     app.add_middleware(HeadAsGet)
+    app.state.head_as_get = True  # a 405's Allow names HEAD where it names GET
     app.add_middleware(
         CORSMiddleware,
         allow_origins=list(settings.cors_allow_origins),

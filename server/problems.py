@@ -31,6 +31,8 @@ from starlette.routing import Match
 
 import qem_core
 
+from .storage import StorageUnavailable
+
 __all__ = [
     "PROBLEM_KINDS",
     "PROBLEM_MEDIA_TYPE",
@@ -41,6 +43,9 @@ __all__ = [
 ]
 
 PROBLEM_MEDIA_TYPE = "application/problem+json"
+# How long a client should wait before asking again a service whose storage does not
+# answer (a 503's Retry-After).
+RETRY_AFTER_S = 5
 
 log = logging.getLogger("qem.server")
 
@@ -204,9 +209,17 @@ def _allowed_methods(request: Request) -> list[str]:
         route_methods = getattr(route, "methods", None)
         if match != Match.NONE and route_methods:
             methods |= set(route_methods)
-    if "GET" in methods:
+    if "GET" in methods and getattr(request.app.state, "head_as_get", False):
         methods.add("HEAD")  # answered as GET (head_requests.py)
     return sorted(methods)
+
+
+async def _on_unavailable(request: Request, exc: StorageUnavailable) -> JSONResponse:
+    log.warning("%s %s: %s", request.method, request.url.path, exc)
+    return _kind_response(
+        request, "not-ready", str(exc), headers={"Retry-After": str(RETRY_AFTER_S)},
+        extensions={"part": exc.part},
+    )  # fmt: skip
 
 
 async def _on_unexpected(request: Request, exc: Exception) -> JSONResponse:
@@ -230,6 +243,7 @@ def install_problem_handlers(app: FastAPI) -> None:
     app.add_exception_handler(qem_core.QemError, _on_qem_error)
     app.add_exception_handler(RequestValidationError, _on_validation_error)
     app.add_exception_handler(StarletteHTTPException, _on_http_exception)
+    app.add_exception_handler(StorageUnavailable, _on_unavailable)
     app.add_exception_handler(Exception, _on_unexpected)
 
     def openapi() -> dict[str, Any]:

@@ -10,15 +10,12 @@ from starlette.concurrency import run_in_threadpool
 from .. import __version__
 from ..deps import StorageDep
 from ..metrics import CONTENT_TYPE_LATEST
-from ..problems import Problem, problem_responses
+from ..problems import RETRY_AFTER_S, Problem, problem_responses
 from ..schemas import Health
 
 __all__ = ["router"]
 
 router = APIRouter(tags=["health"])
-
-# How long a client (or a balancer) should wait before asking a service that is not ready.
-RETRY_AFTER_S = 5
 
 
 @router.get("/healthz", response_model=Health, summary="Liveness")

@@ -24,6 +24,7 @@ from .base import (
     MeshRecord,
     MeshStatus,
     MetadataStore,
+    StorageUnavailable,
     new_mesh_id,
     new_token,
 )
@@ -36,6 +37,7 @@ __all__ = [
     "MeshStatus",
     "MetadataStore",
     "Storage",
+    "StorageUnavailable",
     "new_mesh_id",
     "new_token",
     "open_storage",

@@ -32,11 +32,23 @@ __all__ = [
     "MeshRecord",
     "MeshStatus",
     "MetadataStore",
+    "StorageUnavailable",
     "UNFINISHED",
     "new_mesh_id",
     "new_token",
     "check_blob_key",
 ]
+
+class StorageUnavailable(Exception):
+    """The database or the blob store does not answer (down, locked, out of space): the
+    request may succeed later (a 503 with Retry-After), and nothing was half-written.
+
+    part : "database" or "blob store"."""
+
+    def __init__(self, part: str, error: BaseException) -> None:
+        super().__init__(f"the {part} does not answer: {type(error).__name__}: {error}")
+        self.part = part
+
 
 MeshStatus = Literal["queued", "building", "ready", "failed"]
 UNFINISHED: tuple[MeshStatus, ...] = ("queued", "building")

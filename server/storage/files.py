@@ -16,7 +16,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import BinaryIO
 
-from .base import BlobStore, BlobWriter, check_blob_key
+from .base import BlobStore, BlobWriter, StorageUnavailable, check_blob_key
 
 __all__ = ["LocalBlobStore"]
 
@@ -127,16 +127,22 @@ class _FileWriter(BlobWriter):
         self._done = False
 
     def write(self, chunk: bytes) -> None:
-        self._file.write(chunk)
+        try:
+            self._file.write(chunk)
+        except OSError as error:  # out of space, a read-only or lost disk
+            raise StorageUnavailable("blob store", error) from error
         self.size += len(chunk)
 
     def commit(self) -> None:
         if self._done:
             return
-        self._file.flush()
-        os.fsync(self._file.fileno())
-        self._file.close()
-        self._store._publish(self._temp, self._target)
+        try:
+            self._file.flush()
+            os.fsync(self._file.fileno())
+            self._file.close()
+            self._store._publish(self._temp, self._target)
+        except OSError as error:
+            raise StorageUnavailable("blob store", error) from error
         self._done = True
 
     def abort(self) -> None:

@@ -12,10 +12,12 @@ import json
 import sqlite3
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from .base import UNFINISHED, MeshRecord, MetadataStore
+from .base import UNFINISHED, MeshRecord, MetadataStore, StorageUnavailable
 
 __all__ = ["SqliteMetadataStore"]
 
@@ -83,11 +85,11 @@ class SqliteMetadataStore(MetadataStore):
     # -- plumbing -------------------------------------------------------------------
 
     def _execute(self, sql: str, params: tuple[Any, ...] = ()) -> sqlite3.Cursor:
-        with self._lock:
+        with self._lock, _unavailable_on_error():
             return self._db.execute(sql, params)
 
     def _query(self, sql: str, params: tuple[Any, ...] = ()) -> list[MeshRecord]:
-        with self._lock:
+        with self._lock, _unavailable_on_error():
             rows = self._db.execute(sql, params).fetchall()
         return [_to_record(row) for row in rows]
 
@@ -201,6 +203,19 @@ class SqliteMetadataStore(MetadataStore):
     def close(self) -> None:
         with self._lock:
             self._db.close()
+
+
+@contextmanager
+def _unavailable_on_error() -> Iterator[None]:
+    # Locked past the busy timeout, a disk I/O error, a file gone: the database cannot
+    # answer now (each statement is its own transaction, so nothing was half-written).
+    # IntegrityError is a caller's bug, not the database's state: it goes through.
+    try:
+        yield
+    except sqlite3.IntegrityError:
+        raise
+    except (sqlite3.OperationalError, sqlite3.DatabaseError) as error:
+        raise StorageUnavailable("database", error) from error
 
 
 def _from_record(record: MeshRecord) -> dict[str, Any]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import sqlite3
 import time
 
 import anyio
@@ -518,3 +519,31 @@ def test_metrics_count_requests_builds_and_caches(client, sphere):
     assert value('qem_cache_misses_total{cache="levels"}') >= 1
     assert value('qem_cache_hits_total{cache="levels"}') >= 2
     assert value('qem_cache_used{cache="levels"}') > 0
+
+
+class _LockedDatabase:
+    """A database connection that answers as SQLite does when another process holds it
+    locked past the busy timeout."""
+
+    def execute(self, *args, **kwargs):
+        raise sqlite3.OperationalError("database is locked")
+
+
+def test_a_database_that_does_not_answer_is_a_503_then_recovers(tmp_path, monkeypatch):
+    with make_client(tmp_path) as client:
+        mesh_id = upload(client).json()["id"]
+        metadata = client.app.state.storage.metadata
+        with monkeypatch.context() as locked:
+            locked.setattr(metadata, "_db", _LockedDatabase())
+            for answer in (client.get("/v1/meshes"), upload(client), client.delete(
+                f"/v1/meshes/{mesh_id}")):  # fmt: skip
+                assert answer.status_code == 503, answer.text
+                assert answer.headers["Retry-After"] == "5"
+                body = answer.json()
+                assert body["type"] == "/problems/not-ready" and body["part"] == "database"
+                assert "database is locked" in body["detail"]
+        # Nothing half-written: the refused upload left no blob, and all works again.
+        assert wait_for(client, mesh_id)["status"] == "ready"
+        assert [m["id"] for m in client.get("/v1/meshes").json()["meshes"]] == [mesh_id]
+        uploads = client.app.state.storage.blobs.root / "uploads"
+        assert sorted(path.name for path in uploads.iterdir()) == [mesh_id]

@@ -143,10 +143,11 @@ def source_revision() -> str:
     def git(*arguments: str) -> str:
         return subprocess.run(
             ["git", *arguments], cwd=_REPO_ROOT, capture_output=True, text=True, check=True
-        ).stdout.strip()
+        ).stdout
 
     try:
-        commit = git("rev-parse", "--short", "HEAD")
+        commit = git("rev-parse", "--short", "HEAD").strip()
+        # Not stripped: a porcelain line's status field may start with a space (" M").
         changed = git("status", "--porcelain", "--untracked-files=no", "--", *_SOURCE_DIRS)
     except (OSError, subprocess.CalledProcessError):
         return "unknown"

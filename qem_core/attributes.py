@@ -32,6 +32,11 @@ __all__ = ["AttributeLayout", "Wedges", "corner_values_to_mesh", "make_wedges"]
 FLOAT32_HEADROOM = float(np.finfo(np.float32).max) / 2
 _CHANNELS = (("uv", 2, "uv_weight"), ("color", None, "color_weight"),
              ("normal", 3, "normal_weight"))
+_CHANNEL_WIDTHS = {"uv": (2,), "color": (3, 4), "normal": (3,)}
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
 
 
 class AttributeLayout(NamedTuple):
@@ -62,9 +67,33 @@ class AttributeLayout(NamedTuple):
                 "corner_uvs": self.corner_uvs, "scales": self.scales.tolist()}
 
     @classmethod
-    def from_dict(cls, values: dict) -> AttributeLayout:
-        return cls(tuple(values["names"]), tuple(int(w) for w in values["widths"]),
-                   bool(values["corner_uvs"]), np.asarray(values["scales"], np.float64))
+    def from_dict(cls, values: object) -> AttributeLayout:
+        """The layout ``to_dict`` wrote; ValueError naming what is wrong for anything
+        else (a .qpm's metadata comes through here, and levels would otherwise divide by
+        its scales, negate or blow up values, or index past the wedge rows)."""
+        if not isinstance(values, dict):
+            raise ValueError(f"attributes must be a map, not {type(values).__name__}")
+        names, widths = values.get("names"), values.get("widths")
+        corner_uvs, scales = values.get("corner_uvs"), values.get("scales")
+        if not (isinstance(names, list) and names
+                and all(isinstance(name, str) and name in _CHANNEL_WIDTHS for name in names)
+                and len(set(names)) == len(names)):
+            raise ValueError(f"attribute names {names!r:.80}: distinct, some of "
+                             f"{sorted(_CHANNEL_WIDTHS)}")
+        if not (isinstance(widths, list) and len(widths) == len(names) and all(
+                _is_int(w) and w in _CHANNEL_WIDTHS[n]
+                for n, w in zip(names, widths, strict=True))):
+            raise ValueError(f"attribute widths {widths!r:.80} do not fit the names {names!r:.80}")
+        if not isinstance(corner_uvs, bool) or (corner_uvs and "uv" not in names):
+            raise ValueError(f"corner_uvs {corner_uvs!r}: a bool, true only with 'uv'")
+        # Levels divide float32 values by the scales as float32: each must be one.
+        low, high = float(np.finfo(np.float32).tiny), FLOAT32_HEADROOM
+        if not (isinstance(scales, list) and len(scales) == sum(widths) and all(
+                isinstance(x, int | float) and not isinstance(x, bool) and low <= x <= high
+                for x in scales)):
+            raise ValueError(f"attribute scales {scales!r:.80}: {sum(widths)} numbers in "
+                             f"[{low:.3g}, {high:.3g}] (float32's normal range)")
+        return cls(tuple(names), tuple(widths), corner_uvs, np.asarray(scales, np.float64))
 
 
 class Wedges(NamedTuple):

@@ -147,13 +147,21 @@ def _array_entry(name: str, entry) -> tuple[object, tuple[int, ...], int]:
     that is not non-negative integers, an offset that is not an integer) would otherwise
     escape as ValueError or TypeError, so it is refused here."""
     if (
-        len(entry) != 3
+        not isinstance(entry, list | tuple)
+        or len(entry) != 3
         or not isinstance(entry[1], list)
-        or not all(isinstance(s, int) and s >= 0 for s in entry[1])
-        or not isinstance(entry[2], int)
+        or not all(_is_size(s) for s in entry[1])
+        or not _is_size(entry[2])
     ):
         raise CorruptFileError(f".qpm array {name!r} has a malformed header entry")
     return entry[0], tuple(entry[1]), entry[2]
+
+
+def _is_size(value) -> bool:
+    """A plain integer (not a bool, which is one to Python) in [0, 2^48]: no dimension or
+    offset of a real file is larger, and numpy refuses shapes whose product passes int64
+    even when it is 0 bytes ([2^63 - 1, 0])."""
+    return isinstance(value, int) and not isinstance(value, bool) and 0 <= value <= 1 << 48
 
 
 def _checked_progressive_mesh(arrays: dict, metadata: dict) -> ProgressiveMesh:

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, NoReturn
 
 import numpy as np
 
-from .attributes import AttributeLayout
+from .attributes import FLOAT32_HEADROOM, AttributeLayout
 from .errors import CorruptFileError, InvalidOptionsError
 
 if TYPE_CHECKING:
@@ -145,14 +145,22 @@ def check_wedge_arrays(arrays: dict, level_faces: np.ndarray, layout: object) ->
     k = level_faces.shape[0] - 1
     base = arrays["base_wedge_values"]
     try:
-        width = AttributeLayout.from_dict(layout).width
-    except (TypeError, KeyError, ValueError):
-        _wedge_failure("the metadata does not describe the attributes")
+        checked = AttributeLayout.from_dict(layout)
+    except ValueError as error:  # from_dict checks every field and names the bad one
+        _wedge_failure(f"the metadata does not describe the attributes ({error})")
+    width = checked.width
     if base.ndim != 2 or base.shape[1] != width:
         _wedge_failure(f"wedge values have shape {base.shape}, expected (W, {width})")
     for name in ("base_wedge_values", "wedge_update_values", "wedge_new_values"):
-        if not np.isfinite(arrays[name]).all():
+        values = arrays[name]
+        if not np.isfinite(values).all():
             _wedge_failure(f"{name} holds a non-finite value")
+        # A level divides each column by its scale in float32 (corner_values_to_mesh):
+        # the build keeps what it stores within half float32's range after that.
+        if values.size and values.shape[-1] == width and (
+            np.abs(values.reshape(-1, width)) / checked.scales > FLOAT32_HEADROOM
+        ).any():
+            _wedge_failure(f"{name} holds values past float32's range at their scales")
     # Faces of the base are used from level 0, those born by split i from level i + 1.
     born_at = np.repeat(np.arange(k + 1), np.diff(np.concatenate([[0], level_faces])))
     _check_wedge_records(

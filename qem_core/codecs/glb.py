@@ -37,6 +37,7 @@ import numpy as np
 from ..errors import InvalidMeshError, MeshFormatError
 from ..mesh import Mesh
 from ._corners import split_at_seams, weld
+from ._floats import widened
 from ._images import image_media_type
 
 __all__ = ["read_glb", "write_glb", "is_glb"]
@@ -59,6 +60,18 @@ _ARRAY_BUFFER = 34962
 _ELEMENT_ARRAY_BUFFER = 34963
 _FLOAT = 5126
 _LINEAR, _LINEAR_MIPMAP_LINEAR, _REPEAT = 9729, 9987, 10497
+_UNSIGNED = (5121, 5123, 5125)
+# The accessor types glTF 2.0 allows where the reader reads (its section "Meshes"), and
+# their component types where it restricts them (None: any; integer positions, normals
+# and UVs are KHR_mesh_quantization's). Checked before the values are read, so that a
+# FLOAT index is refused, not truncated, and a SCALAR UV never reaches the code after.
+_ALLOWED = {
+    "POSITION": (("VEC3",), None),
+    "NORMAL": (("VEC3",), None),
+    "TEXCOORD_0": (("VEC2",), None),
+    "COLOR_0": (("VEC3", "VEC4"), (_FLOAT, 5121, 5123)),
+    "indices": (("SCALAR",), _UNSIGNED),
+}
 _GENERATOR = "qem-lod"
 # Primitive extras key: a bufferView of uint32 LE, the Mesh vertex of each glTF vertex.
 _VERTEX_OF = "qem_lod_vertex_of"
@@ -268,7 +281,8 @@ def _chunks(data: bytes) -> tuple[dict, bytes]:
         if chunk_type == _JSON_CHUNK and gltf is None:
             try:
                 gltf = json.loads(data[start : start + chunk_length].decode("utf-8"))
-            except (UnicodeDecodeError, json.JSONDecodeError) as error:
+            except ValueError as error:  # JSONDecodeError, UnicodeDecodeError, and an
+                # integer of more digits than Python converts (int_max_str_digits)
                 raise MeshFormatError(f"GLB JSON chunk is not valid JSON: {error}") from None
             except RecursionError:
                 raise MeshFormatError("GLB JSON chunk nests too deeply to read") from None
@@ -329,8 +343,6 @@ def _read_meshes(gltf: dict, buffers: list[bytes]) -> Mesh:
             n_primitives += 1
             names = primitive["attributes"]
             vertices = _accessor(gltf, buffers, names["POSITION"], "POSITION", normalized=False)
-            if vertices.shape[1] != 3:
-                raise MeshFormatError("GLB POSITION accessor must be VEC3")
             if "indices" in primitive:
                 indices = _accessor(gltf, buffers, primitive["indices"], "indices", False)
                 indices = indices.reshape(-1).astype(np.int64)
@@ -347,7 +359,7 @@ def _read_meshes(gltf: dict, buffers: list[bytes]) -> Mesh:
                     f"GLB primitives read more vertices or indices than {buffer_bytes} bytes "
                     "of buffer can hold: they share accessors too many times over"
                 )
-            positions.append(vertices.astype(np.float64))
+            positions.append(widened(vertices))
             faces.append(indices.reshape(-1, 3) + offset)
             primitive_attributes = {}
             for key, name in _ATTRIBUTES.items():
@@ -367,9 +379,12 @@ def _read_meshes(gltf: dict, buffers: list[bytes]) -> Mesh:
     vertex_attributes = {}
     for name in _ATTRIBUTES.values():
         if all(name in a for a in attributes):
-            vertex_attributes[name] = np.concatenate([a[name] for a in attributes]).astype(
-                np.float32
-            )
+            parts = [a[name] for a in attributes]
+            if name == "color" and len({part.shape[1] for part in parts}) > 1:
+                # RGB beside RGBA (valid glTF): the RGB parts opaque.
+                parts = [np.pad(p, ((0, 0), (0, 4 - p.shape[1])), constant_values=1.0)
+                         for p in parts]  # fmt: skip
+            vertex_attributes[name] = np.concatenate(parts).astype(np.float32)
     vertices = np.concatenate(positions)
     all_faces = np.concatenate(faces)
     if all_faces.size and (all_faces.min() < 0 or all_faces.max() >= vertices.shape[0]):
@@ -479,10 +494,19 @@ def _accessor(
         raise MeshFormatError(f"GLB {what} accessor has no data (no bufferView)")
     dtype = _COMPONENT_TYPES.get(accessor["componentType"])
     width = _WIDTHS.get(accessor["type"])
-    if dtype is None or width is None:
+    types, components = _ALLOWED[what]
+    if (
+        dtype is None
+        or width is None
+        or accessor["type"] not in types
+        or (components is not None and accessor["componentType"] not in components)
+    ):
+        allowed = "/".join(types) + (
+            "" if components is None else f" of componentType {'/'.join(map(str, components))}"
+        )
         raise MeshFormatError(
-            f"GLB {what} accessor has componentType {accessor['componentType']} and type "
-            f"{accessor['type']!r}; expected a glTF 2.0 scalar or vector type"
+            f"GLB {what} accessor has componentType {accessor['componentType']!r} and type "
+            f"{accessor['type']!r}; glTF 2.0 allows {allowed} there"
         )
     count = _whole_number(accessor, "count", f"{what} accessor")
     buffer, start, length, stride = _view_bytes(gltf, buffers, accessor["bufferView"])

@@ -43,6 +43,7 @@ import numpy as np
 from ..errors import InvalidOptionsError, MeshFormatError
 from ..mesh import Mesh
 from ..quantise import AttributeGrid, Grid, QuantisedWedges
+from ._floats import widened
 from ._images import image_media_type
 
 __all__ = [
@@ -209,7 +210,7 @@ def read_msgpack(data: bytes) -> Mesh:
     n_faces = _count(message, "face_count")
     grid = _position_grid(message)
     if grid is None:
-        vertices = _array(message, "positions", "<f4", n_vertices * 3).astype(np.float64)
+        vertices = widened(_array(message, "positions", "<f4", n_vertices * 3))
     else:
         quantised = _array(message, "positions", "<u2", n_vertices * 3).reshape(-1, 3)
         if quantised.size and int(quantised.max()) >= 1 << grid.bits:

@@ -48,7 +48,8 @@ def read_off(data: bytes) -> Mesh:
     texture, color, normal, four_d, n_dimensional = (g is not None for g in keyword.groups())
     if four_d or n_dimensional or b"BINARY" in header[1:2]:
         raise MeshFormatError(
-            f"{header[0].decode()} {b' '.join(header[1:2]).decode()}: only ASCII 3D OFF "
+            # The header may hold any bytes: the message shows them, undecodable or not.
+            f"{b' '.join(header[:2]).decode('utf-8', 'replace')}: only ASCII 3D OFF "
             "is read; convert the file to plain OFF, PLY or OBJ"
         )
     if len(header) > 1:

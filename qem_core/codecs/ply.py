@@ -36,6 +36,7 @@ from ..errors import MeshFormatError
 from ..mesh import Mesh
 from . import _ply_records
 from ._corners import per_vertex
+from ._floats import widened
 from ._polygons import polygon_corners, triangulate_polygons
 from ._text import parse_numbers
 
@@ -115,6 +116,11 @@ def read_ply(data: bytes) -> Mesh:
         raise MeshFormatError(
             "PLY 'face' element has no list property 'vertex_indices' or 'vertex_index' "
             f"(it has {[p.name for p in by_name['face'].properties]})"
+        )
+    if _find(by_name["face"], face_list).count_dtype is None:
+        raise MeshFormatError(
+            f"PLY face property {face_list!r} is a scalar; a face's corners are a list "
+            f"('property list uchar int {face_list}')"
         )
     texcoord = _find(by_name["face"], _TEXCOORD)
     face_names = {face_list}
@@ -437,8 +443,11 @@ def _read_ascii_element(
     position = start
     for prop in props:
         width = 1
+        # Only a plausible first count sets the guess (inf, NaN or a huge one would not
+        # convert): a wrong guess is found below and the records walked one by one.
         if prop.count_dtype is not None and position < tokens.size:
-            width += int(tokens[position]) if tokens[position] >= 0 else 0
+            first = tokens[position]
+            width += int(first) if 0 <= first <= tokens.size - position else 0
         widths.append(width)
         position += width
     record_width = sum(widths)
@@ -521,7 +530,7 @@ def _build_mesh(
             raise MeshFormatError(f"PLY vertex property {name!r} must be a scalar, not a list")
         return value
 
-    vertices = np.stack([column(a).astype(np.float64) for a in "xyz"], axis=1)
+    vertices = np.stack([widened(column(a)) for a in "xyz"], axis=1)
     attributes = {}
     if "nx" in vertex_values:
         attributes["normal"] = np.stack([column(n) for n in ("nx", "ny", "nz")], axis=1)

@@ -20,6 +20,7 @@ import numpy as np
 
 from ..errors import MeshFormatError
 from ..mesh import Mesh
+from ._floats import widened
 from ._text import parse_numbers
 
 __all__ = ["read_stl", "is_binary_stl", "is_ascii_stl"]
@@ -66,7 +67,7 @@ def _read_binary(data: bytes) -> Mesh:
             "bytes: the file is truncated or not an STL"
         )
     facets = np.frombuffer(data, dtype=_FACET, count=n_facets, offset=84)
-    return _soup(facets["corners"].reshape(-1, 3).astype(np.float64))
+    return _soup(widened(facets["corners"].reshape(-1, 3)))
 
 
 def _read_ascii(data: bytes) -> Mesh:

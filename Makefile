@@ -18,7 +18,7 @@ $(WEB)/node_modules/.package-lock.json: $(WEB)/package-lock.json
 	cd $(WEB) && npm ci --no-audit --no-fund
 	touch $@
 
-.PHONY: install serve test lint bench
+.PHONY: install serve test lint bench fuzz
 install: $(BIN)/qem $(WEB)/node_modules/.package-lock.json
 
 serve: install
@@ -31,3 +31,9 @@ test: install
 bench: install
 	$(BIN)/pip install -q -e '.[dev,bench]'
 	$(BIN)/python -m bench.run_all
+
+# The fuzz harness (fuzz/): every reader and decoder, FUZZ_SECONDS each; findings are
+# saved under fuzz/findings/ and make the target fail.
+FUZZ_SECONDS ?= 60
+fuzz: install
+	$(BIN)/python -m fuzz --seconds $(FUZZ_SECONDS)

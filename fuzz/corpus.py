@@ -4,6 +4,8 @@ meshes and the earlier fuzz findings when ``../shared`` is there."""
 
 from __future__ import annotations
 
+import base64
+import json
 import struct
 from pathlib import Path
 
@@ -21,6 +23,7 @@ SHARED = Path(__file__).resolve().parents[2] / "shared"
 # Shared meshes small enough that an execution stays in milliseconds.
 _SMALL_SHARED = ("spot.obj", "spot.ply", "fandisk.ply")
 _SUFFIXES = {"ply": ".ply", "obj": ".obj", "stl": ".stl", "off": ".off", "glb": ".glb",
+             "gltf": ".gltf",
              "msgpack": ".msgpack", "qpm": ".qpm"}  # fmt: skip
 
 
@@ -73,6 +76,15 @@ def _ascii_ply(vertices, faces) -> bytes:
     return ("\n".join(header + body) + "\n").encode()
 
 
+def _as_gltf(glb: bytes) -> bytes:
+    """A GLB's document as a .gltf, its binary chunk a data: URI (nothing beside it)."""
+    json_length = struct.unpack_from("<I", glb, 12)[0]
+    gltf = json.loads(glb[20 : 20 + json_length])
+    binary = glb[28 + json_length :]
+    gltf["buffers"][0]["uri"] = "data:;base64," + base64.b64encode(binary).decode()
+    return json.dumps(gltf).encode()
+
+
 def stream_input(pm) -> bytes:
     """The stream target's input for ``pm``: the msgpack base level (uint32 LE length
     first), then the split stream from it to the full mesh, a few splits a frame."""
@@ -100,6 +112,8 @@ def seeds(target: str, shared: bool = True) -> list[bytes]:
         out = [_ascii_ply(vertices, faces), *written("ply")]
     elif target in ("obj", "glb"):
         out = written(target)
+    elif target == "gltf":
+        out = [_as_gltf(glb) for glb in written("glb")]
     elif target == "stl":
         out = [_stl(vertices, faces, binary=True), _stl(vertices, faces, binary=False)]
     elif target == "off":

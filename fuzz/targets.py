@@ -16,7 +16,7 @@ import msgpack
 
 import qem_core
 from qem_core.codecs.archive import open_archive
-from qem_core.codecs.glb import read_glb
+from qem_core.codecs.glb import read_glb, read_gltf
 from qem_core.codecs.msgpack_mesh import read_msgpack, read_msgpack_wedges
 from qem_core.codecs.mtl import read_mtl
 from qem_core.codecs.obj import read_obj
@@ -105,13 +105,24 @@ def _mutate_any(data: bytes, rng: random.Random, corpus: list[bytes]) -> bytes:
     )
 
 
-def _mutate_msgpack(data: bytes, rng: random.Random, corpus: list[bytes]) -> bytes:
-    if rng.random() < 0.6:
-        try:
-            return msgpack.packb(mutate_tree(msgpack.unpackb(data, raw=False), rng))
-        except Exception:  # not msgpack any more (an earlier byte change): bytes then
-            pass
-    return mutate_bytes(data, rng, corpus)
+def _values_or_bytes(loads, dumps):
+    """A mutator changing the decoded values (``loads``, ``dumps``) of its input, or its
+    bytes when they no longer decode (an earlier byte change) or a value cannot be
+    encoded back."""
+
+    def mutate(data: bytes, rng: random.Random, corpus: list[bytes]) -> bytes:
+        if rng.random() < 0.6:
+            try:
+                return dumps(mutate_tree(loads(data), rng))
+            except Exception:
+                pass
+        return mutate_bytes(data, rng, corpus)
+
+    return mutate
+
+
+_mutate_msgpack = _values_or_bytes(lambda d: msgpack.unpackb(d, raw=False), msgpack.packb)
+_mutate_json = _values_or_bytes(json.loads, lambda value: json.dumps(value).encode())
 
 
 def _mutate_glb(data: bytes, rng: random.Random, corpus: list[bytes]) -> bytes:
@@ -195,6 +206,7 @@ TARGETS: dict[str, Target] = {
         Target("stl", _reader("stl", read_stl), _mutate_any),
         Target("off", _reader("off", read_off), _mutate_any),
         Target("glb", _reader("glb", read_glb), _mutate_glb),
+        Target("gltf", _reader("gltf", read_gltf), _mutate_json),
         Target("msgpack", _msgpack_level, _mutate_msgpack),
         Target("qpm", _qpm, _mutate_qpm),
         Target("stream", _stream, _mutate_stream),

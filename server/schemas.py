@@ -28,7 +28,7 @@ __all__ = [
 
 # The extensions an upload's name may end in (any case); a name without a dot after its
 # last slash is accepted too, its format then guessed from the content.
-UPLOAD_EXTENSIONS = ("ply", "obj", "stl", "off", "glb", "zip")
+UPLOAD_EXTENSIONS = ("ply", "obj", "stl", "off", "glb", "gltf", "zip")
 
 
 def _any_case(word: str) -> str:

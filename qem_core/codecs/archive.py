@@ -34,7 +34,7 @@ __all__ = [
 ]
 
 # The model formats an archive may hold (one of them).
-MODEL_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb")
+MODEL_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb", ".gltf")
 _CHUNK = 1 << 20
 # What Python's zipfile raises on a damaged archive (found by fuzz/: a version it does not
 # read, an offset before the file's start, a name that is not UTF-8 where its flag says

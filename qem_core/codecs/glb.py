@@ -1,4 +1,4 @@
-"""GLB (binary glTF 2.0, Khronos): reader and writer.
+"""glTF 2.0 (Khronos): GLB reader and writer, and the .gltf reader.
 
 Reader: every triangle primitive (mode 4) of every entry of ``meshes`` is read and the
 primitives are concatenated, indices offset. Node transforms and the scene graph are
@@ -12,8 +12,11 @@ texture seam arrives as several vertices at one position: the reader welds verti
 whose position, normal and colour are bit for bit equal, keeping the first of each
 group in file order, and their UVs stay per corner; the "uv" vertex attribute is given
 too when no welded vertex has two UVs. The base-colour image of the first primitive's
-material, when embedded (a bufferView or a data: URI), becomes `Mesh.texture`. Sparse
-accessors, external files and Draco compression are refused.
+material, when embedded (a bufferView or a data: URI) or a file beside the model
+(`companions.Companions`: a path's folder, a zip's members), becomes `Mesh.texture`.
+A .gltf (`read_gltf`) is the same document as JSON, its buffers data: URIs or files
+beside it (a .bin); a GLB's buffers other than its own chunk may be files too. Sparse
+accessors and Draco compression are refused.
 
 Writer: one mesh, one primitive, one node; POSITION float32 with min/max, indices
 uint16 when there are at most 65535 (glTF) vertices (65535 itself is the reserved
@@ -31,6 +34,7 @@ from __future__ import annotations
 import base64
 import json
 import struct
+from urllib.parse import unquote
 
 import numpy as np
 
@@ -39,8 +43,9 @@ from ..mesh import Mesh
 from ._corners import split_at_seams, weld
 from ._floats import widened
 from ._images import image_media_type
+from .companions import Companions, NoCompanions
 
-__all__ = ["read_glb", "write_glb", "is_glb"]
+__all__ = ["is_glb", "read_glb", "read_gltf", "write_glb"]
 
 _MAGIC = b"glTF"
 _JSON_CHUNK = 0x4E4F534A
@@ -81,16 +86,28 @@ def is_glb(data: bytes) -> bool:
     return data[:4] == _MAGIC
 
 
-def read_glb(data: bytes) -> Mesh:
-    """Decode a GLB file into a Mesh. Raises MeshFormatError."""
+def read_glb(data: bytes, files: Companions | None = None) -> Mesh:
+    """Decode a GLB file into a Mesh, reading the files it names through ``files``.
+    Raises MeshFormatError."""
     gltf, binary = _chunks(data)
+    return _read_document(gltf, binary, files)
+
+
+def read_gltf(data: bytes, files: Companions | None = None) -> Mesh:
+    """Decode a .gltf (JSON) file into a Mesh, its .bin and images read through
+    ``files`` unless they are data: URIs. Raises MeshFormatError."""
+    return _read_document(_json(data.removeprefix(b"\xef\xbb\xbf"), "glTF JSON"), None, files)
+
+
+def _read_document(gltf: dict, binary: bytes | None, files: Companions | None) -> Mesh:
+    files = files or NoCompanions()
     try:
-        return _read_meshes(gltf, _buffers(gltf, binary))
+        return _read_meshes(gltf, _buffers(gltf, binary, files), files)
     except MeshFormatError:
         raise
     except (KeyError, IndexError, TypeError, ValueError, AttributeError) as error:
         raise MeshFormatError(
-            f"GLB JSON does not follow glTF 2.0 ({type(error).__name__}: {error})"
+            f"glTF JSON does not follow glTF 2.0 ({type(error).__name__}: {error})"
         ) from None
 
 
@@ -279,35 +296,42 @@ def _chunks(data: bytes) -> tuple[dict, bytes]:
         if start + chunk_length > length:
             raise MeshFormatError("GLB chunk runs past the end of the file: it is truncated")
         if chunk_type == _JSON_CHUNK and gltf is None:
-            try:
-                gltf = json.loads(data[start : start + chunk_length].decode("utf-8"))
-            except ValueError as error:  # JSONDecodeError, UnicodeDecodeError, and an
-                # integer of more digits than Python converts (int_max_str_digits)
-                raise MeshFormatError(f"GLB JSON chunk is not valid JSON: {error}") from None
-            except RecursionError:
-                raise MeshFormatError("GLB JSON chunk nests too deeply to read") from None
+            gltf = _json(data[start : start + chunk_length], "GLB JSON chunk")
         elif chunk_type == _BIN_CHUNK and not binary:
             binary = data[start : start + chunk_length]
         position = start + chunk_length
-    if not isinstance(gltf, dict):
+    if gltf is None:
         raise MeshFormatError("GLB has no JSON chunk holding a glTF object")
     return gltf, binary
 
 
-def _buffers(gltf: dict, binary: bytes) -> list[bytes]:
+def _json(data: bytes, what: str) -> dict:
+    """The glTF object of JSON bytes; MeshFormatError for anything else."""
+    try:
+        gltf = json.loads(data.decode("utf-8"))
+    except ValueError as error:  # JSONDecodeError, UnicodeDecodeError, and an integer
+        # of more digits than Python converts (int_max_str_digits)
+        raise MeshFormatError(f"{what} is not valid JSON: {error}") from None
+    except RecursionError:
+        raise MeshFormatError(f"{what} nests too deeply to read") from None
+    if not isinstance(gltf, dict):
+        raise MeshFormatError(f"{what} does not hold a glTF object")
+    return gltf
+
+
+def _buffers(gltf: dict, binary: bytes | None, files: Companions) -> list[bytes]:
     buffers = []
     for number, buffer in enumerate(gltf.get("buffers", [])):
         uri = buffer.get("uri")
         if uri is None:
-            if number != 0:
-                raise MeshFormatError("GLB buffer without a URI other than buffer 0")
+            if number != 0 or binary is None:
+                raise MeshFormatError(
+                    f"glTF buffer {number} has no URI, and only a GLB's first buffer may "
+                    "(its binary chunk)"
+                )
             content = binary
-        elif uri.startswith("data:") and ";base64," in uri:
-            content = base64.b64decode(uri.split(",", 1)[1], validate=True)
         else:
-            raise MeshFormatError(
-                f"GLB refers to an external file {uri[:60]!r}; embed all data in the GLB"
-            )
+            content = _uri_bytes(uri, files, f"buffer {number}")
         if len(content) < buffer["byteLength"]:
             raise MeshFormatError(
                 f"GLB buffer {number} should hold {buffer['byteLength']} bytes but has "
@@ -321,7 +345,7 @@ def _buffers(gltf: dict, binary: bytes) -> list[bytes]:
 _SHARED_ALLOWANCE = 1 << 20
 
 
-def _read_meshes(gltf: dict, buffers: list[bytes]) -> Mesh:
+def _read_meshes(gltf: dict, buffers: list[bytes], files: Companions) -> Mesh:
     if "KHR_draco_mesh_compression" in gltf.get("extensionsRequired", []):
         raise MeshFormatError("Draco-compressed GLB is not supported; export without Draco")
     positions, faces, attributes, offset = [], [], [], 0
@@ -419,7 +443,7 @@ def _read_meshes(gltf: dict, buffers: list[bytes]) -> Mesh:
         faces=all_faces,
         vertex_attributes=vertex_attributes,
         corner_uvs=corner_uvs,
-        texture=_base_color_image(gltf, buffers, first_primitive),
+        texture=_base_color_image(gltf, buffers, first_primitive, files),
     )
 
 
@@ -531,7 +555,9 @@ def _accessor(
     return np.array(values)
 
 
-def _base_color_image(gltf: dict, buffers: list[bytes], primitive: dict) -> bytes | None:
+def _base_color_image(
+    gltf: dict, buffers: list[bytes], primitive: dict, files: Companions
+) -> bytes | None:
     """The embedded base-colour image bytes of a primitive's material, or None."""
     if "material" not in primitive:
         return None
@@ -546,7 +572,30 @@ def _base_color_image(gltf: dict, buffers: list[bytes], primitive: dict) -> byte
     if "bufferView" in image:
         buffer, start, length, _ = _view_bytes(gltf, buffers, image["bufferView"])
         return bytes(buffer[start : start + length])
-    uri = image.get("uri", "")
-    if uri.startswith("data:") and ";base64," in uri:
-        return base64.b64decode(uri.split(",", 1)[1], validate=True)
-    return None
+    if "uri" not in image:
+        return None
+    try:
+        return _uri_bytes(image["uri"], files, "the base-colour image")
+    except MeshFormatError:
+        return None  # the mesh is read without its image, as from OBJ with one missing
+
+
+def _uri_bytes(uri: object, files: Companions, what: str) -> bytes:
+    """The bytes a glTF URI names: a base64 data: URI, or a relative file read through
+    ``files`` (percent-encoded, as URIs are)."""
+    if not isinstance(uri, str):
+        raise MeshFormatError(f"glTF {what} has a URI that is not a string")
+    if uri.startswith("data:"):
+        if ";base64," not in uri:
+            raise MeshFormatError(f"glTF {what}: a data: URI must be base64")
+        try:
+            return base64.b64decode(uri.split(",", 1)[1], validate=True)
+        except ValueError:
+            raise MeshFormatError(f"glTF {what}: its data: URI is not valid base64") from None
+    content = files.read(unquote(uri))
+    if content is None:
+        raise MeshFormatError(
+            f"glTF {what} is the file {uri[:80]!r}, which is not there: send the .gltf with "
+            "its .bin and images in a zip, or as one GLB"
+        )
+    return content

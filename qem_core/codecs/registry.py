@@ -24,7 +24,7 @@ from ._corners import checked_corner_uvs, finite_float32
 from ._images import image_media_type
 from .archive import is_zip, open_archive
 from .companions import Companions, DirectoryFiles
-from .glb import is_glb, read_glb, write_glb
+from .glb import is_glb, read_glb, read_gltf, write_glb
 from .msgpack_mesh import is_msgpack_mesh, read_msgpack, write_msgpack
 from .obj import obj_companions, read_obj, write_obj, write_obj_zip
 from .off import is_off, read_off
@@ -47,10 +47,12 @@ _READERS: dict[str, Callable[[bytes], Mesh]] = {
     "stl": read_stl,
     "off": read_off,
     "glb": read_glb,
+    "gltf": read_gltf,
     "msgpack": read_msgpack,
 }
-# Readers that read the files a model names beside itself (an OBJ's .mtl and images).
-_READS_COMPANIONS = {"obj"}
+# Readers that read the files a model names beside itself (an OBJ's .mtl and images, a
+# glTF's .bin and images).
+_READS_COMPANIONS = {"obj", "glb", "gltf"}
 _WRITERS: dict[str, Callable[..., bytes]] = {
     "ply": write_ply,
     "obj": write_obj,
@@ -84,7 +86,7 @@ def load_mesh(
     """Read and validate a triangle mesh.
 
     source : a file path, the file's bytes, or a binary file object.
-    format : "ply", "obj", "stl", "off", "glb", "msgpack" or "zip"; None infers it from
+    format : "ply", "obj", "stl", "off", "glb", "gltf", "msgpack" or "zip"; None infers it from
         the name's extension, else from the content (zip and PLY signatures, GLB "glTF"
         magic, OFF keyword, binary STL size, ASCII STL "solid", the msgpack form's
         header, else OBJ if it has 'v' and 'f' lines). A zip archive holds one model

@@ -149,3 +149,16 @@ def test_files_dropped_together_on_the_viewer_upload_as_one_zip(server, http, sp
         assert info["name"] == "spot.zip" and info["vertices"] == 2930
         assert http.get(f"/v1/meshes/{state['id']}/texture").content == spot_image
         assert page.errors == []
+
+
+def test_a_gltf_with_its_bin_and_image_in_a_zip_builds_textured(server, http, tmp_path):
+    from tests.unit.test_gltf import spot_gltf
+
+    files = spot_gltf(external=True)
+    image = files.pop("_image")
+    path = tmp_path / "spot-gltf.zip"
+    path.write_bytes(_zip(files))
+    with server.client() as qem:
+        info = qem.wait_ready(qem.upload(path), timeout=300)
+    assert info["vertices"] == 2930
+    assert http.get(f"/v1/meshes/{info['id']}/texture").content == image

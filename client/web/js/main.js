@@ -127,7 +127,7 @@ function setUploadStatus(text, bad = false) {
   box.classList.toggle("bad", bad);
 }
 
-const MODEL_SUFFIX = /\.(ply|obj|stl|off|glb)$/i;
+const MODEL_SUFFIX = /\.(ply|obj|stl|off|glb|gltf)$/i;
 
 /** One file as it is; several (an OBJ with its .mtl and images) as one zip archive, named
  * after the model among them, which the server reads with the files it names. */

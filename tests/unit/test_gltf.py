@@ -1,0 +1,95 @@
+""".gltf (JSON) with its .bin and images: beside it on disk, in a zip, or as data: URIs;
+and what is missing said by name."""
+
+from __future__ import annotations
+
+import base64
+import json
+import struct
+
+import numpy as np
+import pytest
+
+import qem_core
+from qem_core.codecs.archive import write_archive
+from tests.unit.conftest import SPOT
+
+SPOT_GLB = SPOT.with_suffix(".glb")
+
+
+def split_glb(glb: bytes) -> tuple[dict, bytes]:
+    """The JSON document and the binary chunk of a GLB."""
+    json_length = struct.unpack_from("<I", glb, 12)[0]
+    gltf = json.loads(glb[20 : 20 + json_length])
+    bin_length = struct.unpack_from("<I", glb, 20 + json_length)[0]
+    return gltf, glb[28 + json_length : 28 + json_length + bin_length]
+
+
+def spot_gltf(external: bool) -> dict[str, bytes]:
+    """Spot as a .gltf: with ``external``, the buffer as spot.bin and the image as
+    textures/spot%20skin.png beside it (as exporters write them); else both as data: URIs."""
+    gltf, binary = split_glb(SPOT_GLB.read_bytes())
+    image_view = gltf["bufferViews"][gltf["images"][0]["bufferView"]]
+    start = image_view.get("byteOffset", 0)
+    image = binary[start : start + image_view["byteLength"]]
+    if external:
+        gltf["buffers"][0]["uri"] = "spot.bin"
+        gltf["images"][0] = {"uri": "textures/spot%20skin.png"}
+        files = {"spot.bin": binary, "textures/spot skin.png": image}
+    else:
+        gltf["buffers"][0]["uri"] = "data:application/octet-stream;base64," + base64.b64encode(
+            binary
+        ).decode()
+        files = {}
+    return {"spot.gltf": json.dumps(gltf).encode(), **files, "_image": image}
+
+
+@pytest.fixture(scope="module")
+def spot() -> qem_core.Mesh:
+    return qem_core.load_mesh(SPOT_GLB)
+
+
+def _same_mesh(mesh: qem_core.Mesh, spot: qem_core.Mesh) -> None:
+    assert mesh.n_vertices == spot.n_vertices and mesh.n_faces == spot.n_faces
+    np.testing.assert_array_equal(mesh.vertices, spot.vertices)
+    np.testing.assert_array_equal(mesh.corner_uvs, spot.corner_uvs)
+
+
+def test_a_gltf_with_its_bin_and_image_beside_it(tmp_path, spot):
+    files = spot_gltf(external=True)
+    image = files.pop("_image")
+    for name, data in files.items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_bytes(data)
+    mesh = qem_core.load_mesh(tmp_path / "spot.gltf")
+    _same_mesh(mesh, spot)
+    assert mesh.texture == image
+
+
+def test_a_gltf_in_a_zip_with_its_files(spot):
+    files = spot_gltf(external=True)
+    image = files.pop("_image")
+    mesh = qem_core.load_mesh(write_archive({f"model/{n}": d for n, d in files.items()}))
+    _same_mesh(mesh, spot)
+    assert mesh.texture == image
+
+
+def test_a_gltf_of_data_uris_needs_nothing_beside_it(spot):
+    files = spot_gltf(external=False)
+    mesh = qem_core.load_mesh(files["spot.gltf"], format="gltf")
+    _same_mesh(mesh, spot)
+
+
+def test_a_gltf_whose_bin_is_missing_says_which_file(tmp_path):
+    files = spot_gltf(external=True)
+    (tmp_path / "spot.gltf").write_bytes(files["spot.gltf"])
+    with pytest.raises(qem_core.MeshFormatError, match="'spot.bin', which is not there"):
+        qem_core.load_mesh(tmp_path / "spot.gltf")
+    with pytest.raises(qem_core.MeshFormatError, match="not there: send the .gltf with its"):
+        qem_core.load_mesh(files["spot.gltf"], format="gltf")  # bytes: nothing beside
+
+
+@pytest.mark.parametrize("text", [b"[1, 2]", b"{not json", b'{"asset": 1, "buffers": 5}'])
+def test_a_gltf_that_is_no_gltf_is_refused(text):
+    with pytest.raises(qem_core.MeshFormatError, match="glTF"):
+        qem_core.load_mesh(text, format="gltf")

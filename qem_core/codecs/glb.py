@@ -1,9 +1,10 @@
 """glTF 2.0 (Khronos): GLB reader and writer, and the .gltf reader.
 
-Reader: every triangle primitive (mode 4) of every entry of ``meshes`` is read and the
+Reader: every triangle primitive (mode 4) of every mesh the scene places is read and the
 primitives are concatenated, indices offset. Node transforms and the scene graph are
-ignored: positions are returned in each mesh's own coordinates, and a mesh used by
-several nodes appears once. Attributes: POSITION (required), NORMAL -> "normal",
+applied: each mesh node of the default scene places its mesh by its world transform
+(a mesh used by two nodes comes twice; a document without nodes gives its meshes as
+they are). Attributes: POSITION (required), NORMAL -> "normal",
 COLOR_0 -> "color", TEXCOORD_0 -> `Mesh.corner_uvs` (an attribute is kept only when
 every primitive has it; normalised integer components are scaled to [0, 1]). glTF's
 texture origin is the top-left corner, the Mesh's (like OBJ's) the bottom-left: v is
@@ -358,8 +359,8 @@ def _read_meshes(gltf: dict, buffers: list[bytes], files: Companions) -> Mesh:
     buffer_bytes = sum(len(buffer) for buffer in buffers)
     vertex_budget = buffer_bytes // 3 + _SHARED_ALLOWANCE
     index_budget = buffer_bytes + 3 * _SHARED_ALLOWANCE
-    for mesh in gltf.get("meshes", []):
-        for primitive in mesh["primitives"]:
+    for mesh_index, matrix in _mesh_instances(gltf):
+        for primitive in _item(gltf, "meshes", mesh_index)["primitives"]:
             if primitive.get("mode", _TRIANGLES) != _TRIANGLES:
                 continue  # points and lines carry no surface
             if first_primitive is None:
@@ -383,7 +384,7 @@ def _read_meshes(gltf: dict, buffers: list[bytes], files: Companions) -> Mesh:
                     f"GLB primitives read more vertices or indices than {buffer_bytes} bytes "
                     "of buffer can hold: they share accessors too many times over"
                 )
-            positions.append(widened(vertices))
+            positions.append(_placed(widened(vertices), matrix))
             faces.append(indices.reshape(-1, 3) + offset)
             primitive_attributes = {}
             for key, name in _ATTRIBUTES.items():
@@ -395,6 +396,8 @@ def _read_meshes(gltf: dict, buffers: list[bytes], files: Companions) -> Mesh:
                         f"GLB primitive has {values.shape[0]} {key} values for "
                         f"{vertices.shape[0]} positions; each vertex needs one"
                     )
+                if name == "normal" and matrix is not None:
+                    values = _turned_normals(values, matrix)
                 primitive_attributes[name] = values
             attributes.append(primitive_attributes)
             offset += vertices.shape[0]
@@ -445,6 +448,78 @@ def _read_meshes(gltf: dict, buffers: list[bytes], files: Companions) -> Mesh:
         corner_uvs=corner_uvs,
         texture=_base_color_image(gltf, buffers, first_primitive, files),
     )
+
+
+# Node nesting past this is a cycle or a hostile file; real scenes nest a few levels.
+_MAX_NODE_DEPTH = 64
+
+
+def _mesh_instances(gltf: dict) -> list[tuple[int, np.ndarray | None]]:
+    """(mesh index, the 4x4 world matrix placing it, None for identity) for each node of
+    the default scene (else the first, else every root node) that has a mesh, in scene
+    order; a mesh used by two nodes comes twice. Without nodes, each mesh once, as is."""
+    nodes = gltf.get("nodes", [])
+    if not nodes:
+        return [(index, None) for index in range(len(gltf.get("meshes", [])))]
+    scenes = gltf.get("scenes", [])
+    if scenes:
+        scene = _item(gltf, "scenes", gltf.get("scene", 0))
+        roots = scene.get("nodes", [])
+    else:
+        children = {c for node in nodes for c in node.get("children", [])}
+        roots = [i for i in range(len(nodes)) if i not in children]
+    instances: list[tuple[int, np.ndarray | None]] = []
+    stack = [(root, np.eye(4), 0) for root in reversed(roots)]
+    while stack:
+        index, parent, depth = stack.pop()
+        if depth > _MAX_NODE_DEPTH:
+            raise MeshFormatError(f"glTF nodes nest deeper than {_MAX_NODE_DEPTH}: a cycle?")
+        node = _item(gltf, "nodes", index)
+        world = parent @ _node_matrix(node, index)
+        if "mesh" in node:
+            identity = np.array_equal(world, np.eye(4))
+            instances.append((node["mesh"], None if identity else world))
+        stack.extend((child, world, depth + 1) for child in reversed(node.get("children", [])))
+    return instances
+
+
+def _node_matrix(node: dict, index: int) -> np.ndarray:
+    """A node's local 4x4 matrix: ``matrix`` (column-major) or T * R * S."""
+    try:
+        if "matrix" in node:
+            matrix = np.asarray(node["matrix"], np.float64).reshape(4, 4).T
+        else:
+            x, y, z, w = np.asarray(node.get("rotation", [0, 0, 0, 1]), np.float64)
+            rotation = np.array([
+                [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+            ])  # fmt: skip
+            matrix = np.eye(4)
+            matrix[:3, :3] = rotation * np.asarray(node.get("scale", [1, 1, 1]), np.float64)
+            matrix[:3, 3] = np.asarray(node.get("translation", [0, 0, 0]), np.float64)
+    except (TypeError, ValueError):
+        raise MeshFormatError(f"glTF node {index} has a malformed transform") from None
+    if not np.isfinite(matrix).all():
+        raise MeshFormatError(f"glTF node {index} has a transform that is not finite")
+    return matrix
+
+
+def _placed(positions: np.ndarray, matrix: np.ndarray | None) -> np.ndarray:
+    if matrix is None:
+        return positions
+    return positions @ matrix[:3, :3].T + matrix[:3, 3]
+
+
+def _turned_normals(normals: np.ndarray, matrix: np.ndarray) -> np.ndarray:
+    """Normals under ``matrix``: by the inverse transpose of its 3x3 part, unit again."""
+    try:
+        turn = np.linalg.inv(matrix[:3, :3]).T
+    except np.linalg.LinAlgError:
+        return normals  # a degenerate transform flattens the mesh; leave its normals
+    turned = normals @ turn.T
+    length = np.linalg.norm(turned, axis=1, keepdims=True)
+    return np.where(length > 0, turned / np.maximum(length, 1e-300), turned)
 
 
 def _unsplit(

@@ -93,3 +93,49 @@ def test_a_gltf_whose_bin_is_missing_says_which_file(tmp_path):
 def test_a_gltf_that_is_no_gltf_is_refused(text):
     with pytest.raises(qem_core.MeshFormatError, match="glTF"):
         qem_core.load_mesh(text, format="gltf")
+
+
+def test_node_transforms_place_each_instance_of_a_mesh():
+    """A mesh used by two nodes comes twice, each where its node's world transform (a
+    parent's matrix times the child's translation, rotation and scale) puts it; normals
+    turn with it."""
+    from tests.unit.test_fuzz_findings import POSITIONS, _glb
+
+    normals = np.array([[0, 0, 1]] * 3, "<f4").tobytes()
+    binary = POSITIONS + normals
+    quarter = [0.0, 0.0, np.sin(np.pi / 4), np.cos(np.pi / 4)]  # 90 degrees about z
+    gltf = {
+        "asset": {"version": "2.0"}, "buffers": [{"byteLength": len(binary)}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36},
+                        {"buffer": 0, "byteOffset": 36, "byteLength": 36}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3"},
+                      {"bufferView": 1, "componentType": 5126, "count": 3, "type": "VEC3"}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "NORMAL": 1}}]}],
+        "scene": 0, "scenes": [{"nodes": [0, 2]}],
+        "nodes": [
+            {"matrix": [2, 0, 0, 0, 0, 2, 0, 0, 0, 0, 2, 0, 10, 0, 0, 1], "children": [1]},
+            {"mesh": 0, "rotation": quarter},
+            {"mesh": 0, "translation": [0, 0, 5]},
+        ],
+    }  # fmt: skip
+    mesh = qem_core.load_mesh(_glb(gltf, binary), format="glb")
+    assert mesh.n_vertices == 6 and mesh.n_faces == 2
+    # First instance: rotated a quarter turn, then scaled by 2 and moved by 10 along x.
+    np.testing.assert_allclose(mesh.vertices[:3], [[10, 0, 0], [10, 2, 0], [8, 0, 0]],
+                               atol=1e-12)  # fmt: skip
+    np.testing.assert_allclose(mesh.vertices[3:], [[0, 0, 5], [1, 0, 5], [0, 1, 5]])
+    np.testing.assert_allclose(mesh.vertex_attributes["normal"], [[0, 0, 1]] * 6, atol=1e-6)
+
+
+def test_a_node_cycle_is_refused():
+    from tests.unit.test_fuzz_findings import POSITIONS, _glb
+
+    gltf = {
+        "asset": {"version": "2.0"}, "buffers": [{"byteLength": 36}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3"}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0, "children": [1]}, {"children": [0]}],
+    }  # fmt: skip
+    with pytest.raises(qem_core.MeshFormatError, match="nest deeper|cycle|more vertices"):
+        qem_core.load_mesh(_glb(gltf, POSITIONS), format="glb")

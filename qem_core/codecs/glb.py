@@ -17,7 +17,8 @@ material, when embedded (a bufferView or a data: URI) or a file beside the model
 (`companions.Companions`: a path's folder, a zip's members), becomes `Mesh.texture`.
 A .gltf (`read_gltf`) is the same document as JSON, its buffers data: URIs or files
 beside it (a .bin); a GLB's buffers other than its own chunk may be files too. Sparse
-accessors and Draco compression are refused.
+accessors are refused; Draco and meshopt compression are decoded first
+(`gltf_compression.py`).
 
 Writer: one mesh, one primitive, one node; POSITION float32 with min/max, indices
 uint16 when there are at most 65535 (glTF) vertices (65535 itself is the reserved
@@ -45,6 +46,7 @@ from ._corners import split_at_seams, weld
 from ._floats import widened
 from ._images import image_media_type
 from .companions import Companions, NoCompanions
+from .gltf_compression import INDEX_SIZE, decompressed
 
 __all__ = ["is_glb", "read_glb", "read_gltf", "write_glb"]
 
@@ -79,6 +81,7 @@ _ALLOWED = {
     "indices": (("SCALAR",), _UNSIGNED),
 }
 _GENERATOR = "qem-lod"
+_MESHOPT = "EXT_meshopt_compression"
 # Primitive extras key: a bufferView of uint32 LE, the Mesh vertex of each glTF vertex.
 _VERTEX_OF = "qem_lod_vertex_of"
 
@@ -103,7 +106,8 @@ def read_gltf(data: bytes, files: Companions | None = None) -> Mesh:
 def _read_document(gltf: dict, binary: bytes | None, files: Companions | None) -> Mesh:
     files = files or NoCompanions()
     try:
-        return _read_meshes(gltf, _buffers(gltf, binary, files), files)
+        gltf, buffers = decompressed(gltf, _buffers(gltf, binary, files))
+        return _read_meshes(gltf, buffers, files)
     except MeshFormatError:
         raise
     except (KeyError, IndexError, TypeError, ValueError, AttributeError) as error:
@@ -324,6 +328,9 @@ def _buffers(gltf: dict, binary: bytes | None, files: Companions) -> list[bytes]
     buffers = []
     for number, buffer in enumerate(gltf.get("buffers", [])):
         uri = buffer.get("uri")
+        if uri is None and ((buffer.get("extensions") or {}).get(_MESHOPT) or {}).get("fallback"):
+            buffers.append(b"")  # read through its compressed views only
+            continue
         if uri is None:
             if number != 0 or binary is None:
                 raise MeshFormatError(
@@ -347,8 +354,6 @@ _SHARED_ALLOWANCE = 1 << 20
 
 
 def _read_meshes(gltf: dict, buffers: list[bytes], files: Companions) -> Mesh:
-    if "KHR_draco_mesh_compression" in gltf.get("extensionsRequired", []):
-        raise MeshFormatError("Draco-compressed GLB is not supported; export without Draco")
     positions, faces, attributes, offset = [], [], [], 0
     first_primitive = None
     n_primitives = 0
@@ -608,6 +613,12 @@ def _accessor(
             f"{accessor['type']!r}; glTF 2.0 allows {allowed} there"
         )
     count = _whole_number(accessor, "count", f"{what} accessor")
+    decoded_size = _item(gltf, "bufferViews", accessor["bufferView"]).get(INDEX_SIZE)
+    if decoded_size is not None and decoded_size != dtype.itemsize:
+        raise MeshFormatError(
+            f"GLB {what} accessor reads {dtype.itemsize}-byte values from a view decoded as "
+            f"{decoded_size}-byte indices ({_MESHOPT}): the file is inconsistent"
+        )
     buffer, start, length, stride = _view_bytes(gltf, buffers, accessor["bufferView"])
     element = dtype.itemsize * width
     stride = stride or element

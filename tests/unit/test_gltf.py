@@ -139,3 +139,143 @@ def test_a_node_cycle_is_refused():
     }  # fmt: skip
     with pytest.raises(qem_core.MeshFormatError, match="nest deeper|cycle|more vertices"):
         qem_core.load_mesh(_glb(gltf, POSITIONS), format="glb")
+
+
+# -- compressed GLBs: Draco (gltf-transform draco) and meshopt (gltfpack -cc) ----------------
+
+
+def _arrays(gltf: dict, binary: bytes) -> dict[str, np.ndarray]:
+    """POSITION, TEXCOORD_0 and the indices of the one primitive of a GLB we wrote."""
+    primitive = gltf["meshes"][0]["primitives"][0]
+    kinds = {5126: "<f4", 5125: "<u4", 5123: "<u2"}
+    widths = {"SCALAR": 1, "VEC2": 2, "VEC3": 3}
+    out = {}
+    for name, index in (*primitive["attributes"].items(), ("indices", primitive["indices"])):
+        accessor = gltf["accessors"][index]
+        view = gltf["bufferViews"][accessor["bufferView"]]
+        start = view.get("byteOffset", 0) + accessor.get("byteOffset", 0)
+        count, width = accessor["count"], widths[accessor["type"]]
+        dtype = np.dtype(kinds[accessor["componentType"]])
+        out[name] = np.frombuffer(binary, dtype, count * width, start).reshape(count, width)
+    return out
+
+
+def _with_views(gltf: dict, chunks: list[bytes]) -> tuple[dict, bytes]:
+    """``gltf`` with one new bufferView per chunk, appended to a new binary chunk."""
+    binary = b""
+    gltf["bufferViews"] = []
+    for chunk in chunks:
+        gltf["bufferViews"].append({"buffer": 0, "byteOffset": len(binary),
+                                    "byteLength": len(chunk)})  # fmt: skip
+        binary += chunk + b"\0" * (-len(chunk) % 4)
+    gltf["buffers"] = [{"byteLength": len(binary)}]
+    return gltf, binary
+
+
+def _plain_spot() -> tuple[dict, dict[str, np.ndarray]]:
+    """Spot's GLB without its image (the texture is no part of what is compressed)."""
+    gltf, binary = split_glb(SPOT_GLB.read_bytes())
+    arrays = _arrays(gltf, binary)
+    for key in ("images", "textures", "materials", "samplers"):
+        gltf.pop(key, None)
+    gltf["meshes"][0]["primitives"][0].pop("material", None)
+    # Another tool's file: no record of qem-lod's seam split (its bufferView is gone);
+    # the reader welds the seams by position as for any exporter's file.
+    gltf["meshes"][0]["primitives"][0].pop("extras", None)
+    gltf["asset"]["generator"] = "a compressor"
+    return gltf, arrays
+
+
+def draco_spot() -> bytes:
+    from tests.unit.test_fuzz_findings import _glb
+
+    DracoPy = pytest.importorskip("DracoPy")
+    gltf, arrays = _plain_spot()
+    encoded = DracoPy.encode(arrays["POSITION"], arrays["indices"], quantization_bits=16,
+                             tex_coord=arrays["TEXCOORD_0"].astype(np.float64))  # fmt: skip
+    ids = {a["attribute_type"]: a["unique_id"] for a in DracoPy.decode(encoded).attributes}
+    gltf, binary = _with_views(gltf, [encoded])
+    primitive = gltf["meshes"][0]["primitives"][0]
+    for name in ("POSITION", "TEXCOORD_0"):
+        gltf["accessors"][primitive["attributes"][name]].pop("bufferView")
+    gltf["accessors"][primitive["indices"]].pop("bufferView")
+    primitive["extensions"] = {"KHR_draco_mesh_compression": {
+        "bufferView": 0, "attributes": {"POSITION": ids[0], "TEXCOORD_0": ids[3]}}}  # fmt: skip
+    gltf["extensionsUsed"] = gltf["extensionsRequired"] = ["KHR_draco_mesh_compression"]
+    return _glb(gltf, binary)
+
+
+def meshopt_spot() -> bytes:
+    from tests.unit.test_fuzz_findings import _glb
+
+    meshoptimizer = pytest.importorskip("meshoptimizer")
+    gltf, arrays = _plain_spot()
+    primitive = gltf["meshes"][0]["primitives"][0]
+    order = [("POSITION", primitive["attributes"]["POSITION"]),
+             ("TEXCOORD_0", primitive["attributes"]["TEXCOORD_0"]),
+             ("indices", primitive["indices"])]  # fmt: skip
+    chunks, fallback = [], 0
+    for name, _ in order:
+        values = np.ascontiguousarray(arrays[name])
+        if name == "indices":
+            indices = values.reshape(-1).astype(np.uint32)
+            chunks.append(meshoptimizer.encode_index_buffer(indices, len(indices),
+                                                            len(arrays["POSITION"])))  # fmt: skip
+        else:
+            chunks.append(meshoptimizer.encode_vertex_buffer(values))
+    gltf["accessors"][primitive["indices"]]["componentType"] = 5125  # encoded as uint32
+    gltf, binary = _with_views(gltf, chunks)
+    for view, (name, accessor) in zip(gltf["bufferViews"], order, strict=True):
+        count = gltf["accessors"][accessor]["count"]
+        stride = 4 if name == "indices" else arrays[name].shape[1] * 4
+        view["extensions"] = {"EXT_meshopt_compression": {
+            "buffer": 0, "byteOffset": view["byteOffset"], "byteLength": view["byteLength"],
+            "byteStride": stride, "count": count,
+            "mode": "TRIANGLES" if name == "indices" else "ATTRIBUTES"}}  # fmt: skip
+        view.update(buffer=1, byteOffset=fallback, byteLength=count * stride)
+        if name != "indices":
+            view["byteStride"] = stride
+        fallback += count * stride
+        gltf["accessors"][accessor]["bufferView"] = gltf["bufferViews"].index(view)
+    fallback_buffer = {"EXT_meshopt_compression": {"fallback": True}}
+    gltf["buffers"].append({"byteLength": fallback, "extensions": fallback_buffer})
+    gltf["extensionsUsed"] = gltf["extensionsRequired"] = ["EXT_meshopt_compression"]
+    return _glb(gltf, binary)
+
+
+def test_a_draco_glb_reads_as_the_plain_one_within_its_quantisation_step(spot):
+    mesh = qem_core.load_mesh(draco_spot(), format="glb")
+    assert mesh.n_vertices == spot.n_vertices and mesh.n_faces == spot.n_faces
+    step = (spot.vertices.max(0) - spot.vertices.min(0)) / (2**16 - 1)
+    order = np.lexsort(spot.vertices.T)
+    near = np.abs(np.sort(mesh.vertices, axis=0) - np.sort(spot.vertices, axis=0))
+    assert (near <= step + 1e-7).all(), near.max(0)
+    assert np.unique(mesh.faces).size == spot.n_vertices and order.size == spot.n_vertices
+
+
+def _rotated_to_lowest(faces: np.ndarray, corner_uvs: np.ndarray):
+    """Each triangle (and its corners' UVs) rotated to start at its lowest vertex."""
+    shift = np.argmin(faces, axis=1)
+    turn = (shift[:, None] + np.arange(3)) % 3
+    rows = np.arange(len(faces))[:, None]
+    return faces[rows, turn], corner_uvs[rows, turn]
+
+
+def test_a_meshopt_glb_reads_as_the_plain_one(spot):
+    mesh = qem_core.load_mesh(meshopt_spot(), format="glb")
+    # The codecs are lossless; the index codec may rotate a triangle's corners.
+    np.testing.assert_array_equal(mesh.vertices, spot.vertices)
+    faces, uvs = _rotated_to_lowest(mesh.faces, mesh.corner_uvs)
+    expected_faces, expected_uvs = _rotated_to_lowest(spot.faces, spot.corner_uvs)
+    np.testing.assert_array_equal(faces, expected_faces)
+    np.testing.assert_array_equal(uvs, expected_uvs)
+
+
+def test_meshopt_indices_read_at_another_size_than_decoded_are_refused():
+    glb = meshopt_spot()
+    gltf, binary = split_glb(glb)
+    gltf["accessors"][gltf["meshes"][0]["primitives"][0]["indices"]]["componentType"] = 5123
+    from tests.unit.test_fuzz_findings import _glb
+
+    with pytest.raises(qem_core.MeshFormatError, match="decoded as 4-byte indices"):
+        qem_core.load_mesh(_glb(gltf, binary), format="glb")

@@ -103,8 +103,25 @@ def read_gltf(data: bytes, files: Companions | None = None) -> Mesh:
     return _read_document(_json(data.removeprefix(b"\xef\xbb\xbf"), "glTF JSON"), None, files)
 
 
+# Extensions a file may require: decoded (compression, quantised attributes), or about
+# looks qem-lod does not keep (materials, lights; other image formats are left out as
+# from any file). Any other required extension would change what the mesh is.
+_READ_EXTENSIONS = {"KHR_draco_mesh_compression", _MESHOPT, "KHR_mesh_quantization"}
+_IGNORED_EXTENSION_PREFIXES = ("KHR_materials_", "KHR_lights_", "EXT_texture_webp",
+                               "KHR_texture_basisu", "EXT_lights_")  # fmt: skip
+
+
 def _read_document(gltf: dict, binary: bytes | None, files: Companions | None) -> Mesh:
     files = files or NoCompanions()
+    required = gltf.get("extensionsRequired") or []
+    if not isinstance(required, list):
+        raise MeshFormatError("glTF extensionsRequired must be a list of names")
+    for name in required:
+        if name not in _READ_EXTENSIONS and not str(name).startswith(_IGNORED_EXTENSION_PREFIXES):
+            raise MeshFormatError(
+                f"the glTF requires the extension {str(name)[:60]!r}, which qem-lod does not "
+                f"read (it reads {', '.join(sorted(_READ_EXTENSIONS))})"
+            )
     try:
         gltf, buffers = decompressed(gltf, _buffers(gltf, binary, files))
         return _read_meshes(gltf, buffers, files)

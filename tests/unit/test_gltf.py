@@ -279,3 +279,12 @@ def test_meshopt_indices_read_at_another_size_than_decoded_are_refused():
 
     with pytest.raises(qem_core.MeshFormatError, match="decoded as 4-byte indices"):
         qem_core.load_mesh(_glb(gltf, binary), format="glb")
+
+
+def test_a_draco_primitive_that_holds_no_draco_is_refused():
+    from tests.unit.test_fuzz_findings import _glb
+
+    gltf, binary = split_glb(draco_spot())
+    gltf["bufferViews"][0]["byteLength"] = 16  # the first bytes of the Draco data only
+    with pytest.raises(qem_core.MeshFormatError, match="KHR_draco_mesh_compression .* does not"):
+        qem_core.load_mesh(_glb(gltf, binary), format="glb")

@@ -106,7 +106,8 @@ def read_gltf(data: bytes, files: Companions | None = None) -> Mesh:
 # Extensions a file may require: decoded (compression, quantised attributes), or about
 # looks qem-lod does not keep (materials, lights; other image formats are left out as
 # from any file). Any other required extension would change what the mesh is.
-_READ_EXTENSIONS = {"KHR_draco_mesh_compression", _MESHOPT, "KHR_mesh_quantization"}
+_READ_EXTENSIONS = {"KHR_draco_mesh_compression", _MESHOPT, "KHR_mesh_quantization",
+                    "KHR_texture_transform"}  # fmt: skip
 _IGNORED_EXTENSION_PREFIXES = ("KHR_materials_", "KHR_lights_", "EXT_texture_webp",
                                "KHR_texture_basisu", "EXT_lights_")  # fmt: skip
 
@@ -445,7 +446,7 @@ def _read_meshes(gltf: dict, buffers: list[bytes], files: Companions) -> Mesh:
     corner_uvs = None
     uv = vertex_attributes.pop("uv", None)
     if uv is not None:
-        uv = uv[:, :2].astype(np.float64)
+        uv = _texture_transformed(uv[:, :2].astype(np.float64), gltf, first_primitive)
         uv[:, 1] = 1.0 - uv[:, 1]
         uv = uv.astype(np.float32)
         corner_uvs = uv[all_faces]
@@ -656,6 +657,28 @@ def _accessor(
     if normalized and dtype.kind in "iu" and accessor.get("normalized", False):
         return np.maximum(values / np.iinfo(dtype).max, -1.0)
     return np.array(values)
+
+
+def _texture_transformed(uv: np.ndarray, gltf: dict, primitive: dict) -> np.ndarray:
+    """UVs (glTF's, origin top-left) under the KHR_texture_transform of the primitive's
+    base-colour texture, if it has one: offset * rotation * scale, as the extension
+    defines, so that the texture lands where the exporter put it."""
+    material = _item(gltf, "materials", primitive["material"]) if "material" in primitive else {}
+    info = (material.get("pbrMetallicRoughness") or {}).get("baseColorTexture") or {}
+    transform = (info.get("extensions") or {}).get("KHR_texture_transform")
+    if transform is None:
+        return uv
+    try:
+        ox, oy = (float(v) for v in transform.get("offset", [0.0, 0.0]))
+        sx, sy = (float(v) for v in transform.get("scale", [1.0, 1.0]))
+        rotation = float(transform.get("rotation", 0.0))
+    except (TypeError, ValueError):
+        raise MeshFormatError("KHR_texture_transform holds values that are not numbers") from None
+    if not all(np.isfinite([ox, oy, sx, sy, rotation])):
+        raise MeshFormatError("KHR_texture_transform holds a value that is not finite")
+    cos, sin = np.cos(rotation), np.sin(rotation)
+    u, v = uv[:, 0] * sx, uv[:, 1] * sy
+    return np.stack([cos * u + sin * v + ox, -sin * u + cos * v + oy], axis=1)
 
 
 def _base_color_image(

@@ -288,3 +288,20 @@ def test_a_draco_primitive_that_holds_no_draco_is_refused():
     gltf["bufferViews"][0]["byteLength"] = 16  # the first bytes of the Draco data only
     with pytest.raises(qem_core.MeshFormatError, match="KHR_draco_mesh_compression .* does not"):
         qem_core.load_mesh(_glb(gltf, binary), format="glb")
+
+
+def test_a_texture_transform_moves_the_uvs_as_the_extension_says(spot):
+    """KHR_texture_transform on the base colour: offset, a quarter turn, scale (glTF's
+    UV space, origin top-left); the mesh's UVs (origin bottom-left) follow."""
+    from tests.unit.test_fuzz_findings import _glb
+
+    gltf, binary = split_glb(SPOT_GLB.read_bytes())
+    info = gltf["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"]
+    info["extensions"] = {"KHR_texture_transform": {
+        "offset": [0.5, 0.25], "rotation": np.pi / 2, "scale": [2.0, 3.0]}}  # fmt: skip
+    gltf["extensionsUsed"] = gltf["extensionsRequired"] = ["KHR_texture_transform"]
+    mesh = qem_core.load_mesh(_glb(gltf, binary), format="glb")
+    u, v = spot.corner_uvs[..., 0].astype(np.float64), 1.0 - spot.corner_uvs[..., 1]
+    su, sv = 2.0 * u, 3.0 * v  # scale, then a quarter turn: (x, y) -> (y, -x), then offset
+    expected = np.stack([sv + 0.5, 1.0 - (-su + 0.25)], axis=-1)
+    np.testing.assert_allclose(mesh.corner_uvs, expected, atol=1e-6)

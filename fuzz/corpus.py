@@ -85,6 +85,63 @@ def _as_gltf(glb: bytes) -> bytes:
     return json.dumps(gltf).encode()
 
 
+def _compressed_gltf(vertices: np.ndarray, faces: np.ndarray, codec: str) -> bytes:
+    """A .gltf of positions and indices compressed as gltf-transform (Draco) or gltfpack
+    (meshopt) write them, the data a data: URI."""
+    positions = np.ascontiguousarray(vertices, "<f4")
+    indices = np.ascontiguousarray(faces, "<u4").reshape(-1)
+    accessors = [
+        {"componentType": 5126, "count": len(positions), "type": "VEC3"},
+        {"componentType": 5125, "count": len(indices), "type": "SCALAR"},
+    ]
+    primitive: dict = {"attributes": {"POSITION": 0}, "indices": 1}
+    if codec == "draco":
+        import DracoPy
+
+        data = DracoPy.encode(positions, faces, quantization_bits=14)
+        position_id = DracoPy.decode(data).attributes[0]["unique_id"]
+        views = [{"buffer": 0, "byteLength": len(data)}]
+        primitive["extensions"] = {"KHR_draco_mesh_compression": {
+            "bufferView": 0, "attributes": {"POSITION": position_id}}}  # fmt: skip
+        extension, buffers = "KHR_draco_mesh_compression", [data]
+    else:
+        import meshoptimizer
+
+        chunks = [
+            meshoptimizer.encode_vertex_buffer(positions),
+            meshoptimizer.encode_index_buffer(indices, len(indices), len(positions)),
+        ]
+        data, views = b"", []
+        for chunk, (stride, mode, count) in zip(
+            chunks, ((12, "ATTRIBUTES", len(positions)), (4, "TRIANGLES", len(indices))),
+            strict=True,
+        ):
+            views.append({"buffer": 1, "byteLength": stride * count, "extensions": {
+                "EXT_meshopt_compression": {"buffer": 0, "byteOffset": len(data),
+                                            "byteLength": len(chunk), "byteStride": stride,
+                                            "mode": mode, "count": count}}})  # fmt: skip
+            data += chunk + b"\0" * (-len(chunk) % 4)
+        views[0]["byteStride"] = 12
+        for number, accessor in enumerate(accessors):
+            accessor["bufferView"] = number
+        extension, buffers = "EXT_meshopt_compression", [data]
+    gltf = {
+        "asset": {"version": "2.0"}, "extensionsUsed": [extension],
+        "extensionsRequired": [extension], "accessors": accessors, "bufferViews": views,
+        "buffers": [{"byteLength": len(buffers[0]),
+                     "uri": "data:;base64," + base64.b64encode(buffers[0]).decode()}],
+        "meshes": [{"primitives": [primitive]}],
+    }  # fmt: skip
+    if codec == "meshopt":
+        fallback = sum(view["byteLength"] for view in views)
+        gltf["buffers"].append({"byteLength": fallback,
+                                "extensions": {extension: {"fallback": True}}})  # fmt: skip
+        offset = 0
+        for view in views:
+            view["byteOffset"], offset = offset, offset + view["byteLength"]
+    return json.dumps(gltf).encode()
+
+
 def stream_input(pm) -> bytes:
     """The stream target's input for ``pm``: the msgpack base level (uint32 LE length
     first), then the split stream from it to the full mesh, a few splits a frame."""
@@ -114,6 +171,7 @@ def seeds(target: str, shared: bool = True) -> list[bytes]:
         out = written(target)
     elif target == "gltf":
         out = [_as_gltf(glb) for glb in written("glb")]
+        out += [_compressed_gltf(vertices, faces, codec) for codec in ("draco", "meshopt")]
     elif target == "stl":
         out = [_stl(vertices, faces, binary=True), _stl(vertices, faces, binary=False)]
     elif target == "off":

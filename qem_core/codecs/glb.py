@@ -46,7 +46,7 @@ from ._corners import split_at_seams, weld
 from ._floats import widened
 from ._images import image_media_type
 from .companions import Companions, NoCompanions
-from .gltf_compression import INDEX_SIZE, decompressed
+from .gltf_compression import INDEX_SIZE, decompressed, extension
 
 __all__ = ["is_glb", "read_glb", "read_gltf", "write_glb"]
 
@@ -114,13 +114,15 @@ _IGNORED_EXTENSION_PREFIXES = ("KHR_materials_", "KHR_lights_", "EXT_texture_web
 
 def _read_document(gltf: dict, binary: bytes | None, files: Companions | None) -> Mesh:
     files = files or NoCompanions()
-    required = gltf.get("extensionsRequired") or []
-    if not isinstance(required, list):
-        raise MeshFormatError("glTF extensionsRequired must be a list of names")
+    for key in ("extensionsUsed", "extensionsRequired"):
+        names = gltf.get(key, [])
+        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+            raise MeshFormatError(f"glTF {key} must be a list of names")
+    required = gltf.get("extensionsRequired", [])
     for name in required:
-        if name not in _READ_EXTENSIONS and not str(name).startswith(_IGNORED_EXTENSION_PREFIXES):
+        if name not in _READ_EXTENSIONS and not name.startswith(_IGNORED_EXTENSION_PREFIXES):
             raise MeshFormatError(
-                f"the glTF requires the extension {str(name)[:60]!r}, which qem-lod does not "
+                f"the glTF requires the extension {name[:60]!r}, which qem-lod does not "
                 f"read (it reads {', '.join(sorted(_READ_EXTENSIONS))})"
             )
     try:
@@ -346,7 +348,7 @@ def _buffers(gltf: dict, binary: bytes | None, files: Companions) -> list[bytes]
     buffers = []
     for number, buffer in enumerate(gltf.get("buffers", [])):
         uri = buffer.get("uri")
-        if uri is None and ((buffer.get("extensions") or {}).get(_MESHOPT) or {}).get("fallback"):
+        if uri is None and (extension(buffer, _MESHOPT) or {}).get("fallback"):
             buffers.append(b"")  # read through its compressed views only
             continue
         if uri is None:
@@ -665,7 +667,7 @@ def _texture_transformed(uv: np.ndarray, gltf: dict, primitive: dict) -> np.ndar
     defines, so that the texture lands where the exporter put it."""
     material = _item(gltf, "materials", primitive["material"]) if "material" in primitive else {}
     info = (material.get("pbrMetallicRoughness") or {}).get("baseColorTexture") or {}
-    transform = (info.get("extensions") or {}).get("KHR_texture_transform")
+    transform = extension(info, "KHR_texture_transform")
     if transform is None:
         return uv
     try:

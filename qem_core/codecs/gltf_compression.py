@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import MeshFormatError
 
-__all__ = ["INDEX_SIZE", "decompressed"]
+__all__ = ["INDEX_SIZE", "decompressed", "extension"]
 
 # Set on a view decoded from meshopt's index codec: the byte size of its indices.
 INDEX_SIZE = "qem_decoded_index_size"
@@ -33,6 +33,20 @@ _DRACO = "KHR_draco_mesh_compression"
 # view may decode to, so that a declared count cannot allocate without end.
 _MAX_EXPANSION = 256
 _SLACK = 1 << 20
+
+
+def extension(item: object, name: str) -> dict | None:
+    """``item["extensions"][name]`` (None when absent); MeshFormatError when the glTF
+    object, its ``extensions`` or the extension is not a JSON object."""
+    extensions = item.get("extensions") if isinstance(item, dict) else None
+    if extensions is None:
+        if not isinstance(item, dict):
+            raise MeshFormatError(f"a glTF object holding {name} is not a JSON object")
+        return None
+    found = extensions.get(name) if isinstance(extensions, dict) else ()
+    if found is not None and not isinstance(found, dict):
+        raise MeshFormatError(f"glTF {name} (or the extensions holding it) is not an object")
+    return found
 
 
 def decompressed(gltf: dict, buffers: list[bytes]) -> tuple[dict, list[bytes]]:
@@ -54,7 +68,7 @@ def _decode_meshopt_views(gltf: dict, buffers: list[bytes]) -> None:
     import meshoptimizer
 
     for index, view in enumerate(gltf.get("bufferViews", [])):
-        ext = (view.get("extensions") or {}).get(_MESHOPT)
+        ext = extension(view, _MESHOPT)
         if ext is None:
             continue
         what = f"{_MESHOPT} bufferView {index}"
@@ -112,7 +126,7 @@ def _decode_draco_primitives(gltf: dict, buffers: list[bytes]) -> None:
     views = gltf.setdefault("bufferViews", [])
     for mesh_number, mesh in enumerate(gltf.get("meshes", [])):
         for primitive in mesh.get("primitives", []):
-            ext = (primitive.get("extensions") or {}).get(_DRACO)
+            ext = extension(primitive, _DRACO)
             if ext is None:
                 continue
             what = f"{_DRACO} of mesh {mesh_number}"

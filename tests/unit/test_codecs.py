@@ -602,6 +602,8 @@ def _set_path(*path, value):
     _set_path("meshes", value="all"),
     _set_path("extensionsRequired", value=["EXT_not_an_extension_we_read"]),
     _set_path("extensionsRequired", value="KHR_draco_mesh_compression"),  # not a list
+    _set_path("extensionsRequired", value=[["KHR_draco_mesh_compression"]]),  # found by fuzz/
+    _set_path("extensionsUsed", value=[{"name": "EXT_meshopt_compression"}]),
 ])  # fmt: skip
 def test_lying_glb_json_is_refused(change):
     with pytest.raises(MeshFormatError):

@@ -14,7 +14,15 @@ from __future__ import annotations
 
 import sys
 
-from . import build_speed, lod_speed, service, simplify_quality, stream_serving, stream_size
+from . import (
+    build_speed,
+    lod_speed,
+    read_speed,
+    service,
+    simplify_quality,
+    stream_serving,
+    stream_size,
+)
 
 
 def main() -> int:
@@ -25,6 +33,7 @@ def main() -> int:
         stream_size.main([]),
         service.main([]),
         stream_serving.main([]),
+        read_speed.main([]),
     ]
     return max(statuses)
 

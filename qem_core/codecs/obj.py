@@ -71,7 +71,8 @@ def read_obj(data: bytes, files: Companions | None = None) -> Mesh:
         if keyword == b"usemtl":
             material_starts.append(len(lines[b"f"]))
         lines[keyword].append(body)
-    matches = [match for match in matches if match[0] not in (b"usemtl", b"mtllib")]
+    if lines[b"usemtl"] or lines[b"mtllib"]:  # the counters below see geometry lines only
+        matches = [match for match in matches if match[0] not in (b"usemtl", b"mtllib")]
     if not lines[b"v"] and not lines[b"f"]:
         raise MeshFormatError("not an OBJ file: no 'v' or 'f' lines")
     positions = _table(lines[b"v"], 3, "OBJ 'v' line")

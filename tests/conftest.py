@@ -19,6 +19,7 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "qem-lod"))
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_MESHES = REPO.parent / "shared" / "meshes"
+SHARED_FUZZ_FINDINGS = REPO.parent / "shared" / "fuzz-findings"
 
 
 @pytest.fixture(scope="session")
@@ -28,3 +29,12 @@ def shared_meshes() -> Path:
     if not SHARED_MESHES.is_dir():
         pytest.skip(f"shared test meshes not found at {SHARED_MESHES} (../shared/meshes)")
     return SHARED_MESHES
+
+
+@pytest.fixture(scope="session")
+def fuzz_findings() -> Path:
+    """The folder of fuzz findings against the readers (../shared/fuzz-findings beside the
+    repository: reproducers and raw inputs); tests using it are skipped when it is absent."""
+    if not SHARED_FUZZ_FINDINGS.is_dir():
+        pytest.skip(f"fuzz findings not found at {SHARED_FUZZ_FINDINGS} (../shared/fuzz-findings)")
+    return SHARED_FUZZ_FINDINGS

@@ -33,7 +33,8 @@ def _walk_binary(
         property's value (a list's first item) starts, and each list's item count.
 
     Returns the byte just past the last record, TRUNCATED if the data ends first, or
-    BAD_COUNT for a negative list count.
+    BAD_COUNT for a negative list count (its record and property then hold count -1 and
+    the byte where the count starts, for the caller's message).
     """
     end = data.size
     position = start
@@ -48,6 +49,8 @@ def _walk_binary(
                     byte = data[position + k] if big_endian else data[position + n_bytes - 1 - k]
                     count = count * 256 + np.int64(byte)
                 if count_signed[prop] and count >= np.int64(1) << (8 * n_bytes - 1):
+                    property_starts[record, prop] = position
+                    list_counts[record, prop] = -1
                     return BAD_COUNT
                 position += n_bytes
                 property_starts[record, prop] = position
@@ -65,7 +68,8 @@ def _walk_tokens(tokens, start, n_records, is_list, property_starts, list_counts
     """The ASCII twin of `_walk_binary`: positions are token indices in `tokens` (float64).
 
     Returns the token just past the last record, TRUNCATED, or BAD_COUNT for a list
-    count that is negative or not an integer.
+    count that is negative, not an integer or more than the tokens left (marked as in
+    `_walk_binary`: count -1, and the count's token).
     """
     end = tokens.size
     position = start
@@ -76,6 +80,8 @@ def _walk_tokens(tokens, start, n_records, is_list, property_starts, list_counts
                     return TRUNCATED
                 value = tokens[position]
                 if not (value >= 0.0 and value <= end and value == np.floor(value)):
+                    property_starts[record, prop] = position
+                    list_counts[record, prop] = -1
                     return BAD_COUNT
                 count = np.int64(value)
                 position += 1

@@ -36,6 +36,7 @@ from __future__ import annotations
 import base64
 import json
 import struct
+import sys
 from urllib.parse import unquote
 
 import numpy as np
@@ -66,19 +67,40 @@ _ATTRIBUTES = {"NORMAL": "normal", "COLOR_0": "color", "TEXCOORD_0": "uv"}
 _TRIANGLES = 4
 _ARRAY_BUFFER = 34962
 _ELEMENT_ARRAY_BUFFER = 34963
-_FLOAT = 5126
+_BYTE, _UNSIGNED_BYTE, _SHORT, _UNSIGNED_SHORT = 5120, 5121, 5122, 5123
+_UNSIGNED_INT, _FLOAT = 5125, 5126
+_COMPONENT_NAMES = {_BYTE: "BYTE", _UNSIGNED_BYTE: "UNSIGNED_BYTE", _SHORT: "SHORT",
+                    _UNSIGNED_SHORT: "UNSIGNED_SHORT", _UNSIGNED_INT: "UNSIGNED_INT",
+                    _FLOAT: "FLOAT"}  # fmt: skip
 _LINEAR, _LINEAR_MIPMAP_LINEAR, _REPEAT = 9729, 9987, 10497
-_UNSIGNED = (5121, 5123, 5125)
-# The accessor types glTF 2.0 allows where the reader reads (its section "Meshes"), and
-# their component types where it restricts them (None: any; integer positions, normals
-# and UVs are KHR_mesh_quantization's). Checked before the values are read, so that a
-# FLOAT index is refused, not truncated, and a SCALAR UV never reaches the code after.
+_QUANTIZATION = "KHR_mesh_quantization"
+# What glTF 2.0 allows for each accessor the reader reads (its section 3.7.2.1,
+# "Meshes"): the accessor types, and the component types, each with whether it must be
+# normalized (True) or may be either (None); then what KHR_mesh_quantization adds when
+# the file uses it. Checked before the values are read, so that a FLOAT index is
+# refused rather than truncated, integer colours are never read as 0..255, and a SCALAR
+# UV never reaches the code after.
+_FLOAT_OR_NORMALIZED = ((_FLOAT, None), (_UNSIGNED_BYTE, True), (_UNSIGNED_SHORT, True))
 _ALLOWED = {
-    "POSITION": (("VEC3",), None),
-    "NORMAL": (("VEC3",), None),
-    "TEXCOORD_0": (("VEC2",), None),
-    "COLOR_0": (("VEC3", "VEC4"), (_FLOAT, 5121, 5123)),
-    "indices": (("SCALAR",), _UNSIGNED),
+    "POSITION": (("VEC3",), ((_FLOAT, None),)),
+    "NORMAL": (("VEC3",), ((_FLOAT, None),)),
+    "TEXCOORD_0": (("VEC2",), _FLOAT_OR_NORMALIZED),
+    "COLOR_0": (("VEC3", "VEC4"), _FLOAT_OR_NORMALIZED),
+    "indices": (
+        ("SCALAR",),
+        ((_UNSIGNED_BYTE, None), (_UNSIGNED_SHORT, None), (_UNSIGNED_INT, None)),
+    ),
+}
+_ANY_SMALL_INTEGER = (
+    (_BYTE, None),
+    (_UNSIGNED_BYTE, None),
+    (_SHORT, None),
+    (_UNSIGNED_SHORT, None),
+)
+_QUANTIZED = {
+    "POSITION": _ANY_SMALL_INTEGER,
+    "NORMAL": ((_BYTE, True), (_SHORT, True)),
+    "TEXCOORD_0": _ANY_SMALL_INTEGER,
 }
 _GENERATOR = "qem-lod"
 _MESHOPT = "EXT_meshopt_compression"
@@ -333,10 +355,23 @@ def _chunks(data: bytes) -> tuple[dict, bytes]:
 def _json(data: bytes, what: str) -> dict:
     """The glTF object of JSON bytes; MeshFormatError for anything else."""
     try:
-        gltf = json.loads(data.decode("utf-8"))
-    except ValueError as error:  # JSONDecodeError, UnicodeDecodeError, and an integer
-        # of more digits than Python converts (int_max_str_digits)
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as error:
+        raise MeshFormatError(
+            f"{what} is not UTF-8 text (byte 0x{data[error.start]:02x} at offset "
+            f"{error.start}); glTF JSON must be UTF-8"
+        ) from None
+    try:
+        gltf = json.loads(text)
+    except json.JSONDecodeError as error:
         raise MeshFormatError(f"{what} is not valid JSON: {error}") from None
+    except ValueError:
+        # json reads integers with int(), which refuses more digits than the interpreter's
+        # limit (4300 by default); no glTF value comes near (counts fit in 2^53).
+        raise MeshFormatError(
+            f"{what} is not valid JSON for glTF: it holds an integer of more than "
+            f"{sys.get_int_max_str_digits()} digits"
+        ) from None
     except RecursionError:
         raise MeshFormatError(f"{what} nests too deeply to read") from None
     if not isinstance(gltf, dict):
@@ -391,8 +426,14 @@ def _read_meshes(gltf: dict, buffers: list[bytes], files: Companions) -> Mesh:
             if first_primitive is None:
                 first_primitive = primitive
             n_primitives += 1
-            names = primitive["attributes"]
-            vertices = _accessor(gltf, buffers, names["POSITION"], "POSITION", normalized=False)
+            names = primitive.get("attributes")
+            if not isinstance(names, dict) or "POSITION" not in names:
+                raise MeshFormatError(
+                    f"GLB mesh {mesh_index} has a triangle primitive without a POSITION "
+                    "attribute: glTF 2.0 requires one"
+                )
+            # Normalised integer positions are KHR_mesh_quantization's (its node scales them).
+            vertices = _accessor(gltf, buffers, names["POSITION"], "POSITION", normalized=True)
             if "indices" in primitive:
                 indices = _accessor(gltf, buffers, primitive["indices"], "indices", False)
                 indices = indices.reshape(-1).astype(np.int64)
@@ -573,7 +614,7 @@ def _unsplit(
 def _item(gltf: dict, key: str, index: object) -> dict:
     """gltf[key][index], checking that the index exists (no negative indices)."""
     items = gltf.get(key, [])
-    if not isinstance(index, int) or not 0 <= index < len(items):
+    if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < len(items):
         raise MeshFormatError(f"GLB refers to {key}[{index!r}], which does not exist")
     return items[index]
 
@@ -616,22 +657,7 @@ def _accessor(
         raise MeshFormatError(f"GLB {what} uses a sparse accessor, which is not supported")
     if "bufferView" not in accessor:
         raise MeshFormatError(f"GLB {what} accessor has no data (no bufferView)")
-    dtype = _COMPONENT_TYPES.get(accessor["componentType"])
-    width = _WIDTHS.get(accessor["type"])
-    types, components = _ALLOWED[what]
-    if (
-        dtype is None
-        or width is None
-        or accessor["type"] not in types
-        or (components is not None and accessor["componentType"] not in components)
-    ):
-        allowed = "/".join(types) + (
-            "" if components is None else f" of componentType {'/'.join(map(str, components))}"
-        )
-        raise MeshFormatError(
-            f"GLB {what} accessor has componentType {accessor['componentType']!r} and type "
-            f"{accessor['type']!r}; glTF 2.0 allows {allowed} there"
-        )
+    dtype, width = _checked_format(gltf, accessor, what)
     count = _whole_number(accessor, "count", f"{what} accessor")
     decoded_size = _item(gltf, "bufferViews", accessor["bufferView"]).get(INDEX_SIZE)
     if decoded_size is not None and decoded_size != dtype.itemsize:
@@ -659,6 +685,51 @@ def _accessor(
     if normalized and dtype.kind in "iu" and accessor.get("normalized", False):
         return np.maximum(values / np.iinfo(dtype).max, -1.0)
     return np.array(values)
+
+
+def _checked_format(gltf: dict, accessor: dict, what: str) -> tuple[np.dtype, int]:
+    """(dtype, width) of an accessor read as ``what`` ("POSITION", "indices", ...), once
+    its type, componentType and normalized are what glTF 2.0 allows there (`_ALLOWED`,
+    and `_QUANTIZED` when the file uses KHR_mesh_quantization)."""
+    kind = accessor.get("type")
+    component = accessor.get("componentType")
+    normalized = accessor.get("normalized", False)
+    types, formats = _ALLOWED[what]
+    used = (*gltf.get("extensionsUsed", []), *gltf.get("extensionsRequired", []))
+    quantized = _QUANTIZATION in used
+    if quantized:
+        formats += _QUANTIZED.get(what, ())
+    if not isinstance(kind, str) or kind not in types:
+        raise MeshFormatError(
+            f"GLB {what} accessor has type {kind!r}; glTF 2.0 allows {' or '.join(types)} there"
+        )
+    if not isinstance(normalized, bool):
+        raise MeshFormatError(
+            f"GLB {what} accessor has normalized {normalized!r}; it must be true or false"
+        )
+    known = isinstance(component, int) and component in _COMPONENT_NAMES
+    if known and any(c == component and n in (None, normalized) for c, n in formats):
+        return _COMPONENT_TYPES[component], _WIDTHS[kind]
+    found = repr(component)
+    if known:
+        found = ("normalized " if normalized else "") + f"{_COMPONENT_NAMES[component]} ({found})"
+    hint = ""
+    if not quantized and known and any(c == component for c, _ in _QUANTIZED.get(what, ())):
+        hint = f"; integer {what} values need the file to use {_QUANTIZATION}"
+    raise MeshFormatError(
+        f"GLB {what} accessor has componentType {found}; glTF 2.0 allows "
+        f"{_formats_named(formats)} there{hint}"
+    )
+
+
+def _formats_named(formats: tuple[tuple[int, bool | None], ...]) -> str:
+    """The (componentType, normalized) pairs named: "FLOAT, normalized UNSIGNED_BYTE"."""
+    names = []
+    for component in dict.fromkeys(c for c, _ in formats):
+        modes = {n for c, n in formats if c == component}
+        name = _COMPONENT_NAMES[component]
+        names.append(f"normalized {name}" if modes == {True} else name)
+    return ", ".join(names)
 
 
 def _texture_transformed(uv: np.ndarray, gltf: dict, primitive: dict) -> np.ndarray:

@@ -27,6 +27,7 @@ values, u v per corner, as MeshLab writes them). docs/formats.md has the exact l
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
 
@@ -359,7 +360,11 @@ def _read_binary_element(
         starts,
         counts,
     )
-    _check_walk(end, element)
+
+    def stored_count(at: int, prop: _Property) -> int:
+        return int(data[at : at + prop.count_dtype.itemsize].view(prop.count_dtype)[0])
+
+    _check_walk(end, element, starts, counts, stored_count)
     values: _Values = {}
     for column, prop in enumerate(props):
         if prop.name not in wanted:
@@ -475,7 +480,7 @@ def _read_ascii_element(
     counts = np.zeros((element.count, len(props)), dtype=np.int64)
     is_list = np.array([p.count_dtype is not None for p in props])
     end = _ply_records.walk_tokens(tokens, start, element.count, is_list, starts, counts)
-    _check_walk(end, element)
+    _check_walk(end, element, starts, counts, lambda at, prop: f"{float(tokens[at]):g}")
     values = {}
     for column, prop in enumerate(props):
         if prop.name not in wanted:
@@ -491,16 +496,28 @@ def _read_ascii_element(
     return values, int(end)
 
 
-def _check_walk(end: int, element: _Element) -> None:
+def _check_walk(
+    end: int,
+    element: _Element,
+    starts: np.ndarray,
+    counts: np.ndarray,
+    count_at: Callable[[int, _Property], object],
+) -> None:
+    """Refuse a walk that ended early; ``count_at(position, property)`` is the list count
+    stored at a position, as written in the file, for the message."""
     if end == _ply_records.TRUNCATED:
         raise MeshFormatError(
             f"PLY data ends inside the '{element.name}' element (header says "
             f"{element.count} records): the file is truncated"
         )
     if end == _ply_records.BAD_COUNT:
+        record, column = (int(i) for i in np.argwhere(counts < 0)[0])
+        prop = element.properties[column]
+        count = count_at(int(starts[record, column]), prop)
         raise MeshFormatError(
             f"PLY '{element.name}' element has a list with a negative or non-integer "
-            "length: the file is damaged"
+            f"length: record {record}'s {prop.name!r} has length {count}, where a whole "
+            "number no greater than the values that follow is needed: the file is damaged"
         )
 
 

@@ -91,8 +91,14 @@ def append_merged(record: Record, parts: Sequence[Record]) -> Record:
         rows = [getattr(p, field)[:c] for p, c in zip(parts, counts, strict=True)]
         np.take(np.concatenate(rows), order, axis=0, out=out, mode="clip")
 
-    def merged_runs(field: str, end_field: str) -> tuple[np.ndarray, np.ndarray]:
-        """The runs' items in merged order, and their lengths."""
+    def runs_length(end_field: str) -> int:
+        return sum(int(getattr(p, end_field)[c - 1]) if c else 0
+                   for p, c in zip(parts, counts, strict=True))
+
+    def merge_runs_into(field: str, end_field: str, out: np.ndarray) -> np.ndarray:
+        """out <- the runs' items in merged order, gathered straight into it (no
+        merged copy beside the record: a big build's peak memory); returns their
+        lengths."""
         items, ends = [], []
         base = 0
         for p, c in zip(parts, counts, strict=True):
@@ -102,25 +108,24 @@ def append_merged(record: Record, parts: Sequence[Record]) -> Record:
             ends.append(end + base)
             base += length
         all_ends = np.concatenate(ends)
-        lengths = np.diff(all_ends, prepend=0)[order]
-        out = np.empty(base, np.int32)
         gather_runs(np.concatenate(items), all_ends, order, out)
-        return out, lengths
+        return np.diff(all_ends, prepend=0)[order]
 
     j0, killed0, relabel0 = (int(x) for x in record.counts[:3])
     total = sum(counts)
-    killed, killed_lengths = merged_runs("killed", "killed_end")
-    relabel, relabel_lengths = merged_runs("relabel", "relabel_end")
-    if relabel0 + relabel.size > record.relabel.shape[0]:
-        record = record._replace(relabel=grown(record.relabel, -1, relabel0 + relabel.size))
+    n_killed, n_relabel = runs_length("killed_end"), runs_length("relabel_end")
+    if relabel0 + n_relabel > record.relabel.shape[0]:
+        record = record._replace(relabel=grown(record.relabel, -1, relabel0 + n_relabel))
     span = slice(j0, j0 + total)
     for field in ("a", "b", "position_a", "position_b", "cost"):
         merge_into(field, getattr(record, field)[span])
-    record.killed[killed0:killed0 + killed.size] = killed
+    killed_lengths = merge_runs_into("killed", "killed_end",
+                                     record.killed[killed0:killed0 + n_killed])
     record.killed_end[span] = killed0 + np.cumsum(killed_lengths)
-    record.relabel[relabel0:relabel0 + relabel.size] = relabel
+    relabel_lengths = merge_runs_into("relabel", "relabel_end",
+                                      record.relabel[relabel0:relabel0 + n_relabel])
     record.relabel_end[span] = relabel0 + np.cumsum(relabel_lengths)
     record.counts[0] = j0 + total
-    record.counts[1] = killed0 + killed.size
-    record.counts[2] = relabel0 + relabel.size
+    record.counts[1] = killed0 + n_killed
+    record.counts[2] = relabel0 + n_relabel
     return record

@@ -94,6 +94,7 @@ __all__ = [
     "contract_in_rounds",
     "in_input_order",
     "edges_by_part",
+    "mesh_only",
     "spatial_order",
     "write_back",
 ]
@@ -157,7 +158,7 @@ class RoundArrays:
 
 def spatial_order(vertices: np.ndarray, faces: np.ndarray, mesh_edges: MeshEdges
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, MeshEdges]:
-    """The mesh renumbered in z-order: (vertex_order, face_order, ordered_faces,
+    """The mesh renumbered in z-order: (vertex_order, face_order (int32), ordered_faces,
     ordered_edges). The vertices go by the Morton code of their position (on a
     2^MORTON_BITS grid over the bounding box, ties by index), the faces by their lowest
     corner in that order; ``ordered_faces`` is ``faces[face_order]`` in the new vertex
@@ -177,10 +178,11 @@ def spatial_order(vertices: np.ndarray, faces: np.ndarray, mesh_edges: MeshEdges
     codes = np.empty(n, np.uint64)
     morton_codes(vertices, low, ((1 << MORTON_BITS) - 1) / extent if extent > 0 else 0.0,
                  MORTON_BITS, codes)
-    vertex_order = order_by_code(codes, 3 * MORTON_BITS)
+    # Both orders are kept to the build's end (`in_input_order`): int32, like every index.
+    vertex_order = order_by_code(codes, 3 * MORTON_BITS).astype(np.int32)
     rank = np.empty(n, np.int32)
     rank[vertex_order] = np.arange(n, dtype=np.int32)
-    face_order = np.empty(faces.shape[0], np.int64)
+    face_order = np.empty(faces.shape[0], np.int32)
     ordered_faces = np.empty(faces.shape, np.int32)
     faces_by_lowest_corner(faces, rank, face_order, ordered_faces, sort_chunks())
     n_edges = mesh_edges.edges.shape[0]
@@ -216,18 +218,25 @@ def in_input_order(run_record: Record, cx: Complex, vertex_order: np.ndarray,
         rows = in_place(values).reshape(values.shape[0], -1)
         move_rows(order, rows.copy(), rows)
 
-    def left_out(values: np.ndarray) -> np.ndarray:
-        return np.zeros((0,) + values.shape[1:], values.dtype)
-
     _renumber_record(run_record, vertex_order, face_order, since=np.zeros(3, np.int64))
     renumber(vertex_order, cx.faces)
     for values in (cx.vertices, cx.vertex_alive):
         move(vertex_order, values)
     for values in (cx.faces, cx.face_alive):
         move(face_order, values)
+    return run_record, mesh_only(cx)
+
+
+def mesh_only(cx: Complex) -> Complex:
+    """``cx`` with only its mesh (vertices, faces, what is alive, wedge values): the
+    loop's working state left out, as empty arrays of the same trailing shapes."""
+
+    def left_out(values: np.ndarray) -> np.ndarray:
+        return np.zeros((0,) + values.shape[1:], values.dtype)
+
     working = ("vertex_quadrics", "vertex_refused", "face_normals", "face_quadrics",
                "face_edge", "edge_quadrics", "face_wedges")
-    return run_record, cx._replace(**{name: left_out(getattr(cx, name)) for name in working})
+    return cx._replace(**{name: left_out(getattr(cx, name)) for name in working})
 
 
 def _renumber_record(record: Record, vertex_ids: np.ndarray, face_ids: np.ndarray,
@@ -243,7 +252,7 @@ def _renumber_record(record: Record, vertex_ids: np.ndarray, face_ids: np.ndarra
 
 
 def edges_by_part(cx: Complex, part: np.ndarray, faces_in_part: np.ndarray, n_edge_ids: int,
-                  arrays: RoundArrays | None = None
+                  arrays: RoundArrays | None = None, heap_rows: np.ndarray | None = None
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The edges of the live faces with both ends in one part p < faces_in_part.size
     (``part`` as `Neighbourhood.part`): (ids (R,) int64, ends (R, 2) int32, run_start,
@@ -252,12 +261,22 @@ def edges_by_part(cx: Complex, part: np.ndarray, faces_in_part: np.ndarray, n_ed
     faces_in_part : the live faces with all corners in each part (or more): their three
     sides each are the room for its edges, so they are found in one pass, not counted
     first; R is that room. n_edge_ids: more than any edge id of ``cx``.
-    ``arrays``: where ids and ends are taken from (fresh ones if None)."""
+    ``arrays``: where ids and ends are taken from (fresh ones if None).
+    ``heap_rows``: (R, 3) int64 heap entries, or None: ids and ends are then views of
+    their rows instead, the ids in column 2 and the ends in column 1's two halves, where
+    `fill_heap` reads each before it writes that row."""
     arrays = arrays or RoundArrays()
     room = 3 * faces_in_part.astype(np.int64)
     run_start = np.concatenate([[0], np.cumsum(room)[:-1]]).astype(np.int64)
-    ids = arrays.empty("edge ids", (int(room.sum()),), np.int64)
-    ends = arrays.empty("edge ends", (ids.size, 2), np.int32)
+    if heap_rows is None:
+        ids = arrays.empty("edge ids", (int(room.sum()),), np.int64)
+        ends = arrays.empty("edge ends", (ids.size, 2), np.int32)
+    else:
+        # No arrays of their own: 24 bytes an edge less at a round's peak memory.
+        ids = heap_rows[:, 2]
+        ends = heap_rows.view(np.int32)[:, 2:4]
+        if ids.size != int(room.sum()):
+            raise ValueError(f"edges_by_part: {ids.size} heap rows for room {int(room.sum())}")
     found = np.zeros(room.size, np.int64)
     part_edges(cx.faces, cx.face_alive, cx.face_edge, part, n_edge_ids, run_start,
                run_start + room, ids, ends, found)
@@ -378,6 +397,7 @@ def contract_in_rounds(cx: Complex, hood: Neighbourhood, pairs: Pairs, record: R
                                     lambda round_done, before=done: report(before + round_done))
             record = append_merged(record, [loop.record for loop in loops])
             hood.generation[0] = max(int(loop.hood.generation[0]) for loop in loops)
+            del loops  # the parts' records, freed before the next round's are made
             done += round_done
             if round_done < MIN_ROUND_SHARE * n_live:
                 state.over = True
@@ -406,14 +426,15 @@ def _start_round(executor: ThreadPoolExecutor, cx: Complex, hood: Neighbourhood,
     # The parts' heaps are runs of one array, each the room of its part's edges (a heap
     # never holds more: an edge is in it at most once, and a loop adds only edges of its
     # part), filled at once (in parallel). ``position`` is shared: the ids are disjoint.
+    entries = arrays.empty("heap entries", (3 * int(faces_in_part[:n_parts].sum()), 3),
+                           np.int64)  # the runs' rows written
     ids, ends, run_start, run_end = edges_by_part(cx, hood.part, faces_in_part[:n_parts],
-                                                  n_edge_ids, arrays)
+                                                  n_edge_ids, arrays, heap_rows=entries)
     runs = [slice(start, end)
             for start, end in zip(run_start.tolist(), run_end.tolist(), strict=True)]
     n_edges = int((run_end - run_start).sum())
     if n_edges == 0:
         return None
-    entries = arrays.empty("heap entries", (ids.size, 3), np.int64)  # the runs' rows written
     position = arrays.empty("heap positions", (n_edge_ids,), np.int32)
     position.fill(-1)
     fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, ends, ids, run_start, run_end,

@@ -72,6 +72,7 @@ from .rounds import (
     contract_in_rounds,
     edges_by_part,
     in_input_order,
+    mesh_only,
     spatial_order,
     write_back,
 )
@@ -109,11 +110,12 @@ class ContractionRun(NamedTuple):
     n_contractions: int
 
 
-def to_unit_scale(vertices: np.ndarray,
-                  box: np.ndarray | None = None) -> tuple[np.ndarray, int, float]:
+def to_unit_scale(vertices: np.ndarray, box: np.ndarray | None = None,
+                  in_place: bool = False) -> tuple[np.ndarray, int, float]:
     """(vertices * 2**-e, e, their bounding-box diagonal), e such that the scaled
     vertices have their longest bounding-box side in [0.5, 1): the mesh as `build`
     contracts it. ``box``: the vertices' `bounding_box`, if the caller has it.
+    ``in_place``: scale ``vertices`` (a float64 C array) itself, not a copy.
 
     A power of two scales every product, sum and square root the kernels take exactly
     (short of underflow), so the levels are the same at any scale, and the quadrics of a
@@ -123,7 +125,7 @@ def to_unit_scale(vertices: np.ndarray,
     longest = float(half_sides.max())
     scale = int(np.frexp(longest)[1]) + 1 if longest > 0.0 else 0
     unit_vertices = _scaled(np.ascontiguousarray(vertices, np.float64), -scale,
-                            np.empty(vertices.shape))
+                            None if in_place else np.empty(vertices.shape))
     # The scaled corners are the corners of the scaled vertices (the scaling is exact).
     diagonal = float(np.linalg.norm(np.ldexp(high, -scale) - np.ldexp(low, -scale)))
     return unit_vertices, scale, diagonal
@@ -281,6 +283,19 @@ def contract_greedily(
     ``rounds_above``: parallel rounds run while more vertices than this are live
     (default `rounds.PARALLEL_MIN_VERTICES`; `warm_up` lowers it for a small mesh).
     """
+    return _contract_greedily([vertices, faces, mesh_edges], options, progress,
+                              max_contractions, wedges, rounds_above, owned=False)
+
+
+def _contract_greedily(mesh: list, options: BuildOptions, progress: ProgressCallback | None,
+                       max_contractions: int | None, wedges: Wedges | None,
+                       rounds_above: int | None, owned: bool) -> ContractionRun:
+    """`contract_greedily` of ``mesh`` = [vertices, faces, mesh_edges or None], a list it
+    empties, so that the arrays a caller hands over in it alone are freed as soon as the
+    build is done with them (a big mesh's peak memory). ``owned``: vertices (float64)
+    and faces (int32) are C arrays the build may rewrite (`_initial_complex`)."""
+    vertices, faces, mesh_edges = mesh
+    mesh.clear()
     if rounds_above is None:
         rounds_above = rounds.PARALLEL_MIN_VERTICES
     if (options.parallel_rounds and _costs_are_geometric(options, wedges)
@@ -294,12 +309,15 @@ def contract_greedily(
         # A new C array, gathered in threads (numpy's fancy index took 14-39 ms).
         ordered_vertices = np.empty((vertex_order.size, 3))
         take_rows(vertex_order, np.ascontiguousarray(vertices, np.float64), ordered_vertices)
-        run = _contract(ordered_vertices, ordered_faces, options, progress, None,
-                        ordered_edges, None, rounds_while_above=rounds_above)
+        del vertices, faces, mesh_edges  # the z-ordered copies replace them
+        ordered = [ordered_vertices, ordered_faces, ordered_edges]
+        del ordered_vertices, ordered_faces, ordered_edges
+        run = _contract(ordered, options, progress, None, None, rounds_while_above=rounds_above,
+                        owned=True)
         record, cx = in_input_order(run.record, run.complex, vertex_order, face_order)
         return ContractionRun(record, cx, run.n_contractions)
-    return _contract(vertices, faces, options, progress, max_contractions, mesh_edges, wedges,
-                     rounds_while_above=None)
+    return _contract([vertices, faces, mesh_edges], options, progress, max_contractions, wedges,
+                     rounds_while_above=None, owned=owned)
 
 
 def _costs_are_geometric(options: BuildOptions, wedges: Wedges | None) -> bool:
@@ -309,21 +327,27 @@ def _costs_are_geometric(options: BuildOptions, wedges: Wedges | None) -> bool:
     return wedges is None and not options.preserve_volume
 
 
-def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
-              progress: ProgressCallback | None, max_contractions: int | None,
-              mesh_edges: MeshEdges | None, wedges: Wedges | None,
-              rounds_while_above: int | None) -> ContractionRun:
-    """`contract_greedily`, in parallel rounds first while more than
-    ``rounds_while_above`` vertices are live (None: no rounds)."""
+def _contract(mesh: list, options: BuildOptions, progress: ProgressCallback | None,
+              max_contractions: int | None, wedges: Wedges | None,
+              rounds_while_above: int | None, owned: bool) -> ContractionRun:
+    """`_contract_greedily` (which says what ``mesh`` and ``owned`` are), in parallel
+    rounds first while more than ``rounds_while_above`` vertices are live (None: no
+    rounds)."""
     in_rounds = rounds_while_above is not None
+    vertices, faces, mesh_edges = mesh
+    mesh.clear()
     n, m = vertices.shape[0], faces.shape[0]
     if mesh_edges is None:
         mesh_edges = unique_edges(faces, n)
-    # In rounds, the mesh is the z-ordered copy contract_greedily made.
-    cx, edges = _initial_complex(vertices, faces, options, mesh_edges, wedges, owned=in_rounds)
+    cx, edges = _initial_complex(vertices, faces, options, mesh_edges, wedges, owned=owned)
+    del mesh_edges  # its face counts and sides are done with; face_edge lives on in cx
     scratch = _make_scratch(cx, options, wedges)
     params = _kernel_params(options)
     pairs = make_pairs(_pairs_for(vertices, edges, options.pair_threshold), n, edges.shape[0])
+    del vertices, faces
+    n_edges = edges.shape[0]
+    if in_rounds:
+        edges = None  # rebuilt if the rounds contract nothing (`_edges_of`)
     record = make_record(n, m, *cx.wedge_values.shape)
     budget = n if max_contractions is None else max(0, int(max_contractions))
     chunk = min(CHUNK_CONTRACTIONS, max(MIN_CHUNK_CONTRACTIONS, n // 16))
@@ -355,15 +379,19 @@ def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
         if done:
             assert pairs.ends.size == 0
             cx, live_rows = compacted(whole)
+            # Only the mesh of the whole arrays is told back (`write_back`).
+            whole = mesh_only(whole)
             hood = make_neighbourhood(cx.vertices.shape[0])
             counts_before = record.counts.copy()
             if COMPACTED_ROUNDS_MIN_VERTICES < rounds_while_above:
                 run_rounds(COMPACTED_ROUNDS_MIN_VERTICES)
+        else:
+            edges = _edges_of(cx, n_edges)
     lists = make_face_lists(cx.faces, cx.vertices.shape[0], capacity=6 * cx.faces.shape[0] + 1024,
                             alive=cx.face_alive)
     # Candidates: the edges, then the pairs; their ids are the heap's ids.
     candidates = np.concatenate([edges, pairs.ends]) if pairs.ends.size else edges
-    heap = make_heap(candidates.shape[0] if live_rows is None else live_rows.edges.size)
+    heap = make_heap(n_edges + pairs.ends.shape[0] if live_rows is None else live_rows.edges.size)
     exact = options.error_mode == "exact"
     if _costs_are_geometric(options, wedges):
         if live_rows is not None:
@@ -404,6 +432,15 @@ def _contract(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions,
     if live_rows is not None:
         write_back(cx, live_rows, whole, record, counts_before)
     return ContractionRun(record, whole, done)
+
+
+def _edges_of(cx: Complex, n_edges: int) -> np.ndarray:
+    """(n_edges, 2) int32: the (low, high) ends of each edge id of ``cx``'s faces, as
+    `unique_edges` and `spatial_order` give them (every edge is a side of a face)."""
+    ends = np.stack([cx.faces, np.roll(cx.faces, -1, axis=1)], axis=-1).reshape(-1, 2)
+    edges = np.empty((n_edges, 2), np.int32)
+    edges[cx.face_edge.reshape(-1)] = np.sort(ends, axis=1)
+    return edges
 
 
 def _look(cx: Complex, scratch: Scratch) -> tuple:
@@ -559,15 +596,20 @@ def _build(vertices, faces, options: BuildOptions, progress: ProgressCallback | 
             progress(0.02 + 0.93 * fraction)
 
     box = bounding_box(prepared.vertices)
-    unit_vertices, scale, diagonal = to_unit_scale(prepared.vertices, box)
+    # In place: preparation's vertices are a copy of the input's, and nothing else reads them.
+    unit_vertices, scale, diagonal = to_unit_scale(prepared.vertices, box, in_place=True)
     wedges = None
     if attributes_of is not None:
         wedges = make_wedges(attributes_of, prepared.face_map, prepared.faces, options,
                              diagonal)
         if wedges is not None:
             check_options_for_wedges(options)
-    run = contract_greedily(unit_vertices, prepared.faces, options, contraction_progress,
-                            mesh_edges=mesh_edges, wedges=wedges)
+    # Handed over with no other reference kept, each freed once the build is done with it.
+    mesh = [unit_vertices, prepared.faces, mesh_edges]
+    prepared = prepared._replace(vertices=None, faces=None)
+    del unit_vertices, mesh_edges
+    run = _contract_greedily(mesh, options, contraction_progress, None, wedges, None,
+                             owned=True)
     run = in_input_units(run, scale, options.weighting)
     metadata = {
         "bbox": box.tolist(),

@@ -23,10 +23,10 @@ from qem_core.codecs.glb import read_glb
 from qem_core.codecs.off import read_off
 from qem_core.codecs.ply import read_ply
 from qem_core.stream import SplitStreamDecoder
+from tests.tiny_meshes import TETRAHEDRON
 
 FINDINGS = Path(__file__).resolve().parents[3] / "shared" / "fuzz-findings"
-TETRAHEDRON_V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
-TETRAHEDRON_F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+TETRAHEDRON_V, TETRAHEDRON_F = TETRAHEDRON
 
 
 @pytest.fixture(scope="module")

@@ -25,12 +25,14 @@ import struct
 import tempfile
 import zlib
 from pathlib import Path
+from typing import NoReturn
 
 import msgpack
 import numpy as np
 
 from .errors import CorruptFileError
 from .progressive import WEDGE_ARRAYS, ProgressiveMesh, check_splits, check_wedge_arrays
+from .split_checks import decreases
 
 __all__ = ["FORMAT_VERSION", "MAGIC", "load", "save_qpm"]
 
@@ -55,7 +57,7 @@ _WEDGE_DTYPES = {
     "wedge_update_values": ("<f4", 2), "wedge_new_offsets": ("<i8", 1),
     "wedge_new_values": ("<f4", 2), "wedge_relabel_offsets": ("<i8", 1),
     "wedge_relabel_corners": ("<i8", 1), "wedge_relabel_to": ("<i4", 1),
-}
+}  # fmt: skip
 assert tuple(_WEDGE_DTYPES) == WEDGE_ARRAYS
 _OPTIONAL_ARRAYS = {**_WEDGE_DTYPES, "texture": ("|u1", 1)}
 
@@ -112,12 +114,15 @@ def load(source) -> ProgressiveMesh:
     (stored_crc,) = struct.unpack_from("<I", blob, len(blob) - 4)
     if zlib.crc32(blob[:-4]) != stored_crc:
         raise CorruptFileError(".qpm checksum mismatch: the file is damaged or truncated")
+    if header_length > len(blob) - 4 - fixed:
+        raise CorruptFileError(
+            f".qpm header length {header_length} runs past the end of the file ({len(blob)} bytes)"
+        )
     try:
         header = msgpack.unpackb(blob[fixed : fixed + header_length])
-        entries = {entry[0]: entry[1:] for entry in header["arrays"]}
-        metadata = header["metadata"]
-    except Exception as exc:  # msgpack raises several unrelated types
+    except Exception as exc:  # msgpack raises several unrelated types (its docs say so)
         raise CorruptFileError(f".qpm header is unreadable: {exc}") from None
+    entries, metadata = _header_fields(header)
     data_start = fixed + header_length
     data_length = len(blob) - 4 - data_start
     arrays = {}
@@ -128,7 +133,10 @@ def load(source) -> ProgressiveMesh:
             raise CorruptFileError(f".qpm file lacks the array {name!r}")
         stored_dtype, shape, offset = _array_entry(name, entries[name])
         if stored_dtype != dtype or len(shape) != ndim:
-            raise CorruptFileError(f".qpm array {name!r} has dtype {stored_dtype} shape {shape}")
+            raise CorruptFileError(
+                f".qpm array {name!r} has dtype {stored_dtype!r:.40} shape {shape!r:.80}, "
+                f"expected {dtype!r} with {ndim} dimensions"
+            )
         # Python integers: a huge declared shape must not wrap around in int64.
         nbytes = math.prod(shape) * np.dtype(dtype).itemsize
         if not 0 <= offset <= data_length - nbytes:
@@ -142,26 +150,62 @@ def load(source) -> ProgressiveMesh:
     return _checked_progressive_mesh(arrays, metadata)
 
 
+def _header_fields(header) -> tuple[dict, object]:
+    """(name -> [dtype, shape, offset], metadata) of a decoded header: a map with an
+    ``arrays`` list of entries led by distinct names, and a ``metadata`` (checked later)."""
+    if not isinstance(header, dict) or "arrays" not in header or "metadata" not in header:
+        raise CorruptFileError(".qpm header is unreadable: not a map of 'arrays' and 'metadata'")
+    if not isinstance(header["arrays"], list):
+        raise CorruptFileError(
+            f".qpm header is unreadable: 'arrays' is {type(header['arrays']).__name__}, not a list"
+        )
+    entries = {}
+    for entry in header["arrays"]:
+        # The name is a key: a list there would be unhashable, and a repeated name would
+        # leave which of its arrays is meant to the reader.
+        if not isinstance(entry, list) or not entry or not isinstance(entry[0], str):
+            raise CorruptFileError(f".qpm header has an array entry without a name: {entry!r:.80}")
+        if entry[0] in entries:
+            raise CorruptFileError(f".qpm header names the array {entry[0]!r:.80} twice")
+        entries[entry[0]] = entry[1:]
+    return entries, header["metadata"]
+
+
 def _array_entry(name: str, entry) -> tuple[object, tuple[int, ...], int]:
     """(dtype, shape, offset) of a header entry; a malformed one (wrong length, a shape
-    that is not non-negative integers, an offset that is not an integer) would otherwise
-    escape as ValueError or TypeError, so it is refused here."""
-    if (
-        not isinstance(entry, list | tuple)
-        or len(entry) != 3
-        or not isinstance(entry[1], list)
-        or not all(_is_size(s) for s in entry[1])
-        or not _is_size(entry[2])
-    ):
-        raise CorruptFileError(f".qpm array {name!r} has a malformed header entry")
-    return entry[0], tuple(entry[1]), entry[2]
+    that is not non-negative integers or holds too many elements, an offset that is not
+    an integer) would otherwise escape as ValueError or TypeError, so it is refused here,
+    naming the field and its value."""
+
+    def malformed(what: str) -> NoReturn:
+        raise CorruptFileError(f".qpm array {name!r} has a malformed header entry: {what}")
+
+    if len(entry) != 3:
+        malformed(f"{len(entry)} fields after the name, not 3 (dtype, shape, offset)")
+    shape, offset = entry[1], entry[2]
+    if not isinstance(shape, list) or not all(_is_size(s) for s in shape):
+        malformed(f"shape {shape!r:.80} is not a list of integers in [0, 2^48]")
+    # numpy refuses a shape whose element count (its zero dimensions aside) passes int64,
+    # even for 0 bytes ([2^48, 2^48, 0]); no real array comes near 2^48 elements.
+    if math.prod(max(s, 1) for s in shape) > _SIZE_LIMIT:
+        malformed(f"shape {shape!r:.80} has more than 2^48 elements")
+    if not _is_size(offset):
+        malformed(f"offset {offset!r:.80} is not an integer in [0, 2^48]")
+    return entry[0], tuple(shape), offset
+
+
+_SIZE_LIMIT = 1 << 48
 
 
 def _is_size(value) -> bool:
     """A plain integer (not a bool, which is one to Python) in [0, 2^48]: no dimension or
-    offset of a real file is larger, and numpy refuses shapes whose product passes int64
-    even when it is 0 bytes ([2^63 - 1, 0])."""
-    return isinstance(value, int) and not isinstance(value, bool) and 0 <= value <= 1 << 48
+    offset of a real file is larger."""
+    return isinstance(value, int) and not isinstance(value, bool) and 0 <= value <= _SIZE_LIMIT
+
+
+def _is_coordinate(value) -> bool:
+    """A float or an integer, not a bool (msgpack's integers all fit float64)."""
+    return isinstance(value, int | float) and not isinstance(value, bool)
 
 
 def _checked_progressive_mesh(arrays: dict, metadata: dict) -> ProgressiveMesh:
@@ -169,9 +213,14 @@ def _checked_progressive_mesh(arrays: dict, metadata: dict) -> ProgressiveMesh:
     level_faces = arrays["level_faces"]
     if base.shape[1:] != (3,) or arrays["split_positions"].shape != (k, 2, 3):
         raise CorruptFileError(".qpm vertex arrays have inconsistent shapes")
+    # The positions' box (the stream's grid, quantised levels) needs one position; the
+    # build refuses a mesh without faces.
+    if base.shape[0] == 0:
+        raise CorruptFileError(".qpm base mesh has no vertices")
     if level_faces.shape != (k + 1,) or arrays["split_cost"].shape != (k,):
         raise CorruptFileError(".qpm level arrays have inconsistent shapes")
-    if level_faces[-1] != arrays["face_corners"].shape[0] or np.any(np.diff(level_faces) < 0):
+    # Compared, not differenced: np.diff wraps around in int64 (see decreases).
+    if level_faces[-1] != arrays["face_corners"].shape[0] or decreases(level_faces):
         raise CorruptFileError(".qpm face counts per level are inconsistent")
     if level_faces[0] < 0:
         raise CorruptFileError(".qpm base face count is negative")
@@ -198,21 +247,45 @@ def _checked_progressive_mesh(arrays: dict, metadata: dict) -> ProgressiveMesh:
     # (in ProgressiveMesh or pm.bbox) with an unrelated error.
     if not isinstance(metadata, dict) or "bbox" not in metadata:
         raise CorruptFileError(".qpm metadata lacks the bounding box")
-    try:
-        bbox = np.asarray(metadata["bbox"], np.float64).reshape(2, 3)
-    except (TypeError, ValueError):
-        raise CorruptFileError(".qpm bounding box is not 2 x 3 numbers") from None
+    box = metadata["bbox"]
+    # Plain numbers only: numpy would read "1", b"1" or True as a number.
+    if not (
+        isinstance(box, list)
+        and len(box) == 2
+        and all(isinstance(corner, list) and len(corner) == 3 for corner in box)
+        and all(_is_coordinate(x) for corner in box for x in corner)
+    ):
+        raise CorruptFileError(f".qpm bounding box {box!r:.120} is not 2 x 3 numbers")
+    bbox = np.array(box, np.float64)
     if not np.isfinite(bbox).all():
-        raise CorruptFileError(".qpm bounding box holds a non-finite number")
+        raise CorruptFileError(f".qpm bounding box {box!r:.120} holds a non-finite number")
+    # The box goes out as is (the static export's manifest, a viewer's camera): the
+    # build's box has its min corner at or below its max.
+    if (bbox[0] > bbox[1]).any():
+        raise CorruptFileError(f".qpm bounding box {box!r:.120} has min above max")
+    # Each level carries the name (lod_mesh), and the build writes a string or nothing.
+    mesh_name = metadata.get("name")
+    if mesh_name is not None and not isinstance(mesh_name, str):
+        raise CorruptFileError(f".qpm metadata name {mesh_name!r:.80} is not a string")
     vertex_map = arrays.pop("vertex_map")
     texture = arrays.pop("texture", None)
     if any(name in arrays for name in WEDGE_ARRAYS):
         if not all(name in arrays for name in WEDGE_ARRAYS):
             raise CorruptFileError(".qpm file has some of the wedge arrays but not all")
         check_wedge_arrays(arrays, level_faces, metadata.get("attributes"))
-    pm = ProgressiveMesh(**arrays, metadata=metadata,
-                         texture=None if texture is None else texture.tobytes())
+    pm = ProgressiveMesh(
+        **arrays, metadata=metadata, texture=None if texture is None else texture.tobytes()
+    )
     pm.vertex_map = vertex_map
+    # The stream's grid spans every position (stream.grid_for): finite positions from
+    # -1e308 to 1e308 would put its far corner, and the offsets it quantises, at infinity.
+    low, high = pm.position_bounds
+    with np.errstate(over="ignore"):
+        span = high - low
+    if not np.isfinite(span).all():
+        raise CorruptFileError(
+            f".qpm positions span {low.tolist()} to {high.tolist()}, wider than float64 holds"
+        )
     # The index checks above cannot see a relabelled face without a corner at its split's
     # vertex, which would serve wrong levels and stop the stream's encoder: one replay of
     # every split (milliseconds; the server keeps loaded meshes) finds it.

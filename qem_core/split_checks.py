@@ -23,6 +23,7 @@ __all__ = [
     "check_wedge_arrays",
     "check_wedge_splits",
     "coerced_splits",
+    "decreases",
 ]
 
 # The per-split runs of a progressive mesh's wedge arrays (progressive.WEDGE_ARRAYS
@@ -58,11 +59,11 @@ def check_splits(
         fail("array lengths do not match the number of splits")
     if new_faces.ndim != 2 or new_faces.shape[1] != 3:
         fail(f"faces have shape {new_faces.shape}, expected (F, 3)")
-    if np.any(new_face_counts < 0) or int(new_face_counts.sum()) != new_faces.shape[0]:
+    if not _counts_add_up(new_face_counts, new_faces.shape[0]):
         fail("new face counts do not add up to the new faces")
     if relabel_offsets[0] != 0 or relabel_offsets[-1] != relabel_faces.shape[0]:
         fail("relabel offsets do not cover the relabel list")
-    if np.any(np.diff(relabel_offsets) < 0):
+    if decreases(relabel_offsets):
         fail("relabel offsets decrease")
     levels = n_from + np.arange(k)
     if np.any(split_vertex < 0) or np.any(split_vertex >= levels):
@@ -87,8 +88,13 @@ def coerced_splits(splits: VertexSplits) -> VertexSplits:
     would wrap into range), with the dtypes the refinement kernels take.
     Raises CorruptFileError for split data that is not a run of splits."""
     k = np.shape(splits.split_vertex)[0] if np.ndim(splits.split_vertex) == 1 else -1
-    integer_arrays = (splits.split_vertex, splits.new_faces, splits.new_face_counts,
-                      splits.relabel_offsets, splits.relabel_faces)
+    integer_arrays = (
+        splits.split_vertex,
+        splits.new_faces,
+        splits.new_face_counts,
+        splits.relabel_offsets,
+        splits.relabel_faces,
+    )
     if k < 0 or not all(np.asarray(a).dtype.kind in "iu" for a in integer_arrays):
         raise CorruptFileError("inconsistent vertex splits: the indices are not integer arrays")
     positions = np.asarray(splits.split_positions)
@@ -109,8 +115,9 @@ def coerced_splits(splits: VertexSplits) -> VertexSplits:
         )
     # int32 arrays (what ProgressiveMesh.splits and the decoders give) are checked as they
     # are; others as int64, so the narrowing after the check cannot wrap.
-    wide = [a if a.dtype == np.int32 else a.astype(np.int64)
-            for a in map(np.asarray, integer_arrays)]
+    wide = [
+        a if a.dtype == np.int32 else a.astype(np.int64) for a in map(np.asarray, integer_arrays)
+    ]
     check_splits(splits.n_from, splits.faces_from, *wide)
     split_vertex, new_faces, new_face_counts, relabel_offsets, relabel_faces = wide
     return splits._replace(
@@ -157,9 +164,11 @@ def check_wedge_arrays(arrays: dict, level_faces: np.ndarray, layout: object) ->
             _wedge_failure(f"{name} holds a non-finite value")
         # A level divides each column by its scale in float32 (corner_values_to_mesh):
         # the build keeps what it stores within half float32's range after that.
-        if values.size and values.shape[-1] == width and (
-            np.abs(values.reshape(-1, width)) / checked.scales > FLOAT32_HEADROOM
-        ).any():
+        if (
+            values.size
+            and values.shape[-1] == width
+            and (np.abs(values.reshape(-1, width)) / checked.scales > FLOAT32_HEADROOM).any()
+        ):
             _wedge_failure(f"{name} holds values past float32's range at their scales")
     # Faces of the base are used from level 0, those born by split i from level i + 1.
     born_at = np.repeat(np.arange(k + 1), np.diff(np.concatenate([[0], level_faces])))
@@ -176,12 +185,35 @@ def check_wedge_arrays(arrays: dict, level_faces: np.ndarray, layout: object) ->
 def check_wedge_splits(splits: VertexSplits, width: int) -> None:
     """`check_wedge_arrays` for the wedge run of ``splits`` (k = ``width`` columns)."""
     wedges = splits.wedges
-    counts = splits.new_face_counts
+    counts = np.asarray(splits.new_face_counts)
+    if counts.dtype.kind not in "iu" or not _counts_add_up(counts, wedges.new_face_wedges.shape[0]):
+        _wedge_failure("the new face counts do not add up to the new faces' wedges")
+    counts = counts.astype(np.int64, copy=False)  # np.repeat takes no uint64 counts
     level_faces = splits.faces_from + np.concatenate([[0], np.cumsum(counts)])
     born_at = np.repeat(np.arange(1, counts.shape[0] + 1), counts)
     _check_wedge_records(
         width, wedges.wedges_from, level_faces, wedges.new_face_wedges, born_at, *wedges[2:]
     )
+
+
+def decreases(values: np.ndarray) -> bool:
+    """Whether ``values`` (1-d) ever decreases, by comparing neighbours: np.diff of int64
+    offsets wraps around (0, 2^63 - 1, -2^63, -2^62, 5 has no negative step), and np.repeat
+    over such steps, whose int64 sum is small, writes past the array it allocates."""
+    return bool(np.any(values[1:] < values[:-1]))
+
+
+def _counts_add_up(counts: np.ndarray, total: int) -> bool:
+    """Whether ``counts`` (1-d, integers) are >= 0 and add up to ``total`` without
+    wrapping around in int64 ((2^62, 2^62, 2^62, 2^62 + 5) adds up to 5), for the
+    np.repeat over them. With no count negative, a wrap shows as a running total that
+    decreases."""
+    if counts.ndim != 1 or np.any(counts < 0):
+        return False
+    if counts.size and counts.max() > np.iinfo(np.int64).max:  # uint64 past int64
+        return False
+    running = np.cumsum(counts, dtype=np.int64)
+    return not decreases(running) and int(running[-1] if running.size else 0) == total
 
 
 def _wedge_failure(what: str) -> NoReturn:
@@ -212,7 +244,7 @@ def _check_wedge_records(
         ("new wedge", new_offsets),
         ("relabel", relabel_offsets),
     ):
-        if offsets.shape != (k + 1,) or np.any(np.diff(offsets) < 0):
+        if offsets.shape != (k + 1,) or decreases(offsets):
             _wedge_failure(f"the {name} offsets are not one non-decreasing offset per split")
         if offsets[0] != 0:
             _wedge_failure(f"the {name} offsets do not start at 0")

@@ -10,8 +10,9 @@ from starlette.concurrency import run_in_threadpool
 from .. import __version__
 from ..deps import StorageDep
 from ..metrics import CONTENT_TYPE_LATEST
-from ..problems import RETRY_AFTER_S, Problem, problem_responses
+from ..problems import problem_responses
 from ..schemas import Health
+from ..storage import StorageUnavailable
 
 __all__ = ["router"]
 
@@ -34,12 +35,8 @@ async def readyz(storage: StorageDep) -> Health:
         try:
             await run_in_threadpool(check)
         except Exception as error:  # any failure of the part: not ready, and why
-            raise Problem(
-                "not-ready",
-                f"the {part} does not answer: {type(error).__name__}: {error}",
-                headers={"Retry-After": str(RETRY_AFTER_S)},
-                part=part,
-            ) from None
+            # Answered as any request whose storage does not answer (problems.py).
+            raise StorageUnavailable(part, error) from None
     return Health(version=__version__)
 
 

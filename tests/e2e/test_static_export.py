@@ -10,14 +10,18 @@ import re
 import subprocess
 import sys
 import threading
+import zlib
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+import msgpack
 import pytest
 
 import qem_core
+from qem_core.errors import QemError
 from qem_core.stored_stream import StreamIndex
+from qem_core.stream import SplitStreamDecoder, iter_frames
 
 from .conftest import REPO, ServerProcess, shared_mesh
 from .test_viewer import chromium_page, pm_digest, require_web_packages
@@ -147,6 +151,33 @@ def _stream_damaged(target: Path) -> None:
     (target / "stream.qsplits").write_bytes(bytes(data))
 
 
+def _frame_recoded(target: Path) -> None:
+    """Frame 2's coded splits with one byte changed and its CRC-32 made right again: only
+    decoding (in the page's worker) can tell, so the first byte whose change the Python
+    decoder refuses (the decoders agree bit for bit)."""
+    stream = (target / "stream.qsplits").read_bytes()
+    index = StreamIndex.from_json((target / "frames.json").read_bytes())
+    payloads = list(iter_frames([stream]))
+    body = msgpack.unpackb(payloads[2][:-4])
+    for at in range(len(body["splits"]) // 2, len(body["splits"])):
+        coded = bytearray(body["splits"])
+        coded[at] ^= 0x5A
+        packed = msgpack.packb({**body, "splits": bytes(coded)})
+        damaged = packed + zlib.crc32(packed).to_bytes(4, "little")
+        decoder = SplitStreamDecoder.from_msgpack((target / "base.msgpack").read_bytes())
+        for payload in payloads[:2]:
+            decoder.feed(payload)
+        try:
+            decoder.feed(damaged)
+        except QemError:
+            break
+    assert len(damaged) == len(payloads[2])
+    start = index.offsets[2] + 4
+    data = stream[:start] + damaged + stream[start + len(damaged) :]
+    (target / "stream.qsplits").unlink()
+    (target / "stream.qsplits").write_bytes(data)
+
+
 @pytest.mark.parametrize(
     "change, message",
     [
@@ -164,3 +195,17 @@ def test_an_export_that_lies_is_refused_with_a_message(bunny_export, tmp_path, c
         state = _open(page, f"{url}/index.html?src=manifest.json")
         assert state["failure"] and message in state["failure"], state
         assert message in page.text_content("#message")
+
+
+def test_a_frame_the_worker_refuses_stops_the_stream_with_its_message(bunny_export, tmp_path):
+    """A CRC-valid frame that does not decode: refused in the decoder's worker, with the
+    decoder's message on the page; the frames before it stay held and shown."""
+    _, folder = bunny_export
+    lying = _lying_copy(folder, tmp_path / "lying", _frame_recoded)
+    index = StreamIndex.from_json((folder / "frames.json").read_bytes())
+    with http_server(lying) as url, chromium_page(tmp_path / "profile") as page:
+        state = _open(page, f"{url}/index.html?src=manifest.json")
+        assert state["failure"] and state["failure"].startswith("split"), state
+        assert state["failure"] in page.text_content("#message")
+        assert state["received"] == index.vertices[2] and not state["streaming"], state
+        assert state["level"] == index.vertices[2], state

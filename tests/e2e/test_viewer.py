@@ -167,12 +167,16 @@ const { FrameCutter, ProgressiveLevels, decodeBaseMesh, decodeFrame } =
 const plan = JSON.parse(readFileSync(`${dir}/plan.json`, "utf8"));
 const base = decodeBaseMesh(readFileSync(`${dir}/base.msgpack`));
 const levels = new ProgressiveLevels(base, plan.n_full, plan.f_full);
+// What the page holds: the splits as records from a decoder elsewhere (its worker).
+const mirror = new ProgressiveLevels(base, plan.n_full, plan.f_full, { decoder: false });
 const stream = readFileSync(`${dir}/splits.bin`);
 const cutter = new FrameCutter();
 try {
   for (let at = 0, size = 1; at < stream.length; at += size, size = 2 * size + 1) {
     for (const payload of cutter.push(stream.subarray(at, at + size))) {
+      const before = levels.received;
       levels.addFrame(decodeFrame(payload));
+      if (levels.received > before) mirror.addRecord(levels.recordOf(before, levels.received));
     }
   }
   cutter.finish();
@@ -185,27 +189,32 @@ const digest = (...arrays) => {
   for (const array of arrays) hash.update(new Uint8Array(array.buffer));
   return hash.digest("hex");
 };
-const out = {};
-for (const n of plan.visit) {
-  levels.setLevel(n);
-  const positions = Uint16Array.from(levels.positions.subarray(0, 3 * levels.level));
-  const faces = levels.indices.slice(0, 3 * levels.nFaces);
-  out[n] = { level: levels.level, faces: levels.nFaces, digest: digest(positions, faces) };
-  const w = levels.wedges;
-  if (!w) continue;
-  const corners = Uint32Array.from(w.cornerWedge.subarray(0, 3 * levels.nFaces));
-  const values = Uint16Array.from(w.values.subarray(0, w.wedgesAt(levels.level) * w.width));
-  out[n].wedges = digest(corners, values);
+function visit(held, n) {
+  held.setLevel(n);
+  const positions = Uint16Array.from(held.positions.subarray(0, 3 * held.level));
+  const faces = held.indices.slice(0, 3 * held.nFaces);
+  const out = { level: held.level, faces: held.nFaces, digest: digest(positions, faces) };
+  const w = held.wedges;
+  if (!w) return out;
+  const corners = Uint32Array.from(w.cornerWedge.subarray(0, 3 * held.nFaces));
+  const values = Uint16Array.from(w.values.subarray(0, w.wedgesAt(held.level) * w.width));
+  out.wedges = digest(corners, values);
   // Every corner drawn from the render vertex of its (vertex, wedge), at its position.
   const r = w.render;
   let wrong = 0;
-  for (let c = 0; c < 3 * levels.nFaces; c++) {
+  for (let c = 0; c < 3 * held.nFaces; c++) {
     const p = r.indices[c];
-    const v = levels.indices[c];
+    const v = held.indices[c];
     if (r.vertex[p] !== v || r.wedge[p] !== w.cornerWedge[c]) wrong++;
-    for (let d = 0; d < 3; d++) if (r.positions[3 * p + d] !== levels.positions[3 * v + d]) wrong++;
+    for (let d = 0; d < 3; d++) if (r.positions[3 * p + d] !== held.positions[3 * v + d]) wrong++;
   }
-  out[n].wrongRenderCorners = wrong;
+  out.wrongRenderCorners = wrong;
+  return out;
+}
+const out = {};
+for (const n of plan.visit) {
+  out[n] = visit(levels, n);
+  out[n].mirror = visit(mirror, n);
 }
 console.log(JSON.stringify(out));
 """
@@ -244,7 +253,14 @@ def run_refine_js(
     )
     assert done.returncode == 0, done.stderr
     answer = json.loads(done.stdout)
-    return answer if "error" in answer else {int(n): level for n, level in answer.items()}
+    if "error" in answer:
+        return answer
+    levels = {}
+    for n, level in answer.items():
+        # The page's levels (records of splits decoded in its worker) are the decoder's.
+        assert level.pop("mirror") == level, f"level {n}: the records do not rebuild it"
+        levels[int(n)] = level
+    return levels
 
 
 def hand_drawn_pm() -> ProgressiveMesh:

@@ -9,6 +9,7 @@
 
 import { getMesh, listMeshes, lodError, lodUrl, splitsUrl, uploadMesh } from "./api.js";
 import { ProgressiveLevels, decodeBaseMesh, problemError, streamSplits } from "./refine.js";
+import { WorkerDecoder } from "./worker_decoder.js";
 import { MeshScene } from "./scene.js";
 import { openExport, streamExport } from "./static_source.js";
 import { zipFiles } from "./zip.js";
@@ -240,10 +241,10 @@ function serverSource(id) {
       if (!response.ok) throw await problemError(response);
       const bytes = new Uint8Array(await response.arrayBuffer());
       const error = Number(response.headers.get("X-Lod-Error"));
-      return { info, base: decodeBaseMesh(bytes), baseBytes: bytes.length, baseError: error };
+      return { info, base: decodeBaseMesh(bytes), baseData: bytes, baseError: error };
     },
-    stream: (levels, options) =>
-      streamSplits(splitsUrl(id, levels.received, levels.nFull), levels, options),
+    stream: (levels, frames, options) =>
+      streamSplits(splitsUrl(id, levels.received, levels.nFull), frames, options),
     levelError: (n) => lodError(id, n),
   };
 }
@@ -263,15 +264,16 @@ function exportSource(src) {
         faces: manifest.faces,
         min_vertices: manifest.minVertices,
       };
-      return { info, base: opened.base, baseBytes: opened.baseBytes, baseError: undefined };
+      return { info, base: opened.base, baseData: opened.baseData, baseError: undefined };
     },
-    stream: (levels, options) => streamExport(opened, levels, options),
+    stream: (levels, frames, options) => streamExport(opened, frames, options),
     levelError: null, // the export holds no error curve
   };
 }
 
 async function load(source) {
   view?.abort.abort();
+  view?.decoding?.close();
   const abort = new AbortController();
   const signal = abort.signal;
   const id = source.id;
@@ -281,6 +283,7 @@ async function load(source) {
     abort,
     info: null,
     levels: null,
+    decoding: null, // the WorkerDecoder of its stream
     want: Infinity, // the slider's count; Infinity follows the stream to the full mesh
     baseBytes: 0,
     splitBytes: 0,
@@ -299,11 +302,12 @@ async function load(source) {
   $("controls").hidden = true;
   scene?.clear();
   try {
-    const { info, base, baseBytes, baseError } = await source.open(signal);
+    const { info, base, baseData, baseError } = await source.open(signal);
     current.info = info;
-    current.baseBytes = baseBytes;
+    current.baseBytes = baseData.length;
     if (baseError !== undefined) current.errors.set(base.nVertices, baseError);
-    const levels = new ProgressiveLevels(base, info.vertices, info.faces);
+    // The page holds the levels; the frames are decoded in a worker (worker_decoder.js).
+    const levels = new ProgressiveLevels(base, info.vertices, info.faces, { decoder: false });
     current.levels = levels;
     if (!scene) throw new Error("this browser has no WebGL: the mesh cannot be drawn");
     showMessage("");
@@ -314,19 +318,27 @@ async function load(source) {
     $("controls").hidden = false;
     updateStats();
     current.streaming = true;
-    await source.stream(levels, {
-      signal,
-      onBytes: (n) => {
-        current.splitBytes = n;
-        updateStats();
-      },
-      onFrame: () => {
+    const decoding = new WorkerDecoder(levels, baseData, {
+      onRecord: () => {
         if (current !== view) return;
         if (levels.level < current.want) levels.setLevel(current.want);
         scene.changed(true);
         updateStats();
       },
     });
+    current.decoding = decoding;
+    try {
+      await source.stream(levels, decoding, {
+        signal,
+        onBytes: (n) => {
+          current.splitBytes = n;
+          updateStats();
+        },
+      });
+      await decoding.finish();
+    } finally {
+      decoding.close();
+    }
     current.streaming = false;
     current.streamedMs = performance.now() - current.started;
     scene.changed(); // now, not after a background redraw's wait

@@ -22,7 +22,9 @@
 // buffers always hold every received face at its state for the current level, and a
 // move costs O(splits crossed + relabels), never a refetch.
 
-import { decode } from "@msgpack/msgpack";
+// A relative path, not the page's import map: the decoder also runs in a Web Worker
+// (decoder_worker.js), where import maps do not apply.
+import { decode } from "../node_modules/@msgpack/msgpack/dist.esm/index.mjs";
 import { bitLength, INTEGER_SLOTS, newProbs, RangeDecoder, UNIFORM_SLOTS } from "./range_coder.js";
 import { binArray, fail, FrameCutter, gridClose, INDEX_TYPES, WireFormatError } from "./wire.js";
 import { decodeBaseWedges, decodeWedgeFields, WedgeLevels } from "./wedges.js";
@@ -580,7 +582,10 @@ class SplitState {
  * indices : Uint32Array(3 * fFull), every received face at its state for `level`.
  */
 export class ProgressiveLevels {
-  constructor(base, nFull, fFull) {
+  /** `decoder: false` holds the levels only: frames are decoded elsewhere (a Web Worker,
+   * decoder_worker.js) and their splits arrive as records (`addRecord`), so the big
+   * decoding state is not kept twice. */
+  constructor(base, nFull, fFull, { decoder = true } = {}) {
     if (!(nFull >= base.nVertices && fFull >= base.nFaces)) {
       fail(`the full mesh (${nFull} vertices, ${fFull} faces) is smaller than the base mesh`);
     }
@@ -602,13 +607,14 @@ export class ProgressiveLevels {
     this.relabelOffsets = new Uint32Array(nSplits + 1);
     this.relabelFaces = new Uint32Array(Math.max(16, 2 * nSplits)); // grows if needed
     this.received = this.nBase; // vertex count up to which splits are held
-    this.state = new SplitState(base, nFull, fFull); // the received level, for decoding
+    // The received level, for decoding.
+    this.state = decoder ? new SplitState(base, nFull, fFull) : null;
     this.contexts = null; // the range coder's, as the stream's last frame left them
     this.broken = null; // why a frame was refused half-way
     this.level = this.nBase; // vertex count the buffers hold now
     // Appearance (UVs, colours, normals) when the base mesh has wedges; the stream's
     // wedge fields are ignored without.
-    this.wedges = base.wedges ? new WedgeLevels(base, this) : null;
+    this.wedges = base.wedges ? new WedgeLevels(base, this, { decoder }) : null;
     this.texture = base.texture;
   }
 
@@ -625,6 +631,7 @@ export class ProgressiveLevels {
    * move the level. A frame refused half-way
    * leaves the decoder state unusable: later frames are refused too. */
   addFrame(frame) {
+    if (!this.state) fail("these levels take records of splits decoded elsewhere, not frames");
     if (this.broken) fail(`an earlier frame was refused: ${this.broken}`);
     const { nFrom, nTo, facesFrom } = frame;
     // A key frame of splits held already (a stored run served from the frame boundary
@@ -655,6 +662,51 @@ export class ProgressiveLevels {
       this.broken = error.message;
       throw error;
     }
+    this.received = nTo;
+  }
+
+  /** The splits that refine level nFrom to nTo (both received), as copies: what a
+   * ProgressiveLevels without a decoder needs to hold them (`addRecord`). Every array
+   * is its own buffer, so a worker can transfer them. Read before the level moves past
+   * nFrom: the new faces are taken as born. */
+  recordOf(nFrom, nTo) {
+    const a = nFrom - this.nBase;
+    const b = nTo - this.nBase;
+    if (!(a >= 0 && a <= b && nTo <= this.received)) fail(`no received splits ${nFrom}..${nTo}`);
+    const firstFace = this.levelFaces[a];
+    const lastFace = this.levelFaces[b];
+    return {
+      nFrom,
+      nTo,
+      splitVertex: this.splitVertex.slice(a, b),
+      deltas: this.deltas.slice(6 * a, 6 * b),
+      levelFaces: this.levelFaces.slice(a + 1, b + 1),
+      relabelOffsets: this.relabelOffsets.slice(a + 1, b + 1),
+      relabelFaces: this.relabelFaces.slice(this.relabelOffsets[a], this.relabelOffsets[b]),
+      faces: this.indices.slice(3 * firstFace, 3 * lastFace),
+      wedges: this.wedges ? this.wedges.recordOf(a, b, firstFace, lastFace) : null,
+    };
+  }
+
+  /** Hold the splits of a record (`recordOf` of levels decoding the same stream): they
+   * must continue the received ones. Does not move the level. */
+  addRecord(record) {
+    const { nFrom, nTo } = record;
+    if (nFrom !== this.received || !(nTo >= nFrom && nTo <= this.nFull)) {
+      fail(`a record of splits ${nFrom}..${nTo} does not continue the ${this.received} vertices held`);
+    }
+    if (!!record.wedges !== !!this.wedges) fail("a record of splits does not match the levels' wedges");
+    const a = nFrom - this.nBase;
+    const b = nTo - this.nBase;
+    const firstFace = this.levelFaces[a];
+    this.splitVertex.set(record.splitVertex, a);
+    this.deltas.set(record.deltas, 6 * a);
+    this.levelFaces.set(record.levelFaces, a + 1);
+    this.relabelOffsets.set(record.relabelOffsets, a + 1);
+    this.reserveRelabels(this.relabelOffsets[b]);
+    this.relabelFaces.set(record.relabelFaces, this.relabelOffsets[a]);
+    this.indices.set(record.faces, 3 * firstFace);
+    this.wedges?.addRecord(record.wedges, a, b, firstFace);
     this.received = nTo;
   }
 
@@ -947,19 +999,20 @@ export class ProgressiveLevels {
 }
 
 /**
- * Stream the splits of `url` into `levels`: fetch + ReadableStream, frames cut as bytes
- * arrive and applied in order (the first that cannot be stops the stream).
+ * Stream the splits of `url` into `frames` (ProgressiveLevels, or a WorkerDecoder: anything
+ * with addFrame): fetch + ReadableStream, frames cut as bytes arrive and added in order
+ * (the first that cannot be stops the stream).
  * onFrame(bytesSoFar) runs after each frame is stored; onBytes(bytesSoFar) after each
  * network chunk.
  */
-export async function streamSplits(url, levels, { onFrame, onBytes, signal } = {}) {
+export async function streamSplits(url, frames, { onFrame, onBytes, signal } = {}) {
   const response = await fetch(url, { signal });
   if (!response.ok) throw await problemError(response);
   let bytes = 0;
   await readFrames(response, {
     onChunk: (n) => onBytes?.((bytes += n)),
     onPayload: (payload) => {
-      levels.addFrame(decodeFrame(payload));
+      frames.addFrame(decodeFrame(payload));
       onFrame?.(bytes);
     },
   });

@@ -126,7 +126,7 @@ export async function openExport(src, { signal } = {}) {
         `says ${index.vertices[0]} / ${index.faces[0]}`,
     );
   }
-  return { url, manifest, index, base, baseBytes: baseBytes.length };
+  return { url, manifest, index, base, baseData: baseBytes };
 }
 
 /** Runs of frames [i, j): the first small, the next up to about RUN_BYTES each. */
@@ -144,11 +144,12 @@ function frameRuns(index) {
 }
 
 /**
- * Stream the export's frames into `levels` by Range requests, checking each frame against
+ * Stream the export's frames into `frames` (ProgressiveLevels, or a WorkerDecoder: anything
+ * with addFrame) by Range requests, checking each frame against
  * the index. A host that ignores Range (a 200 with the whole file) is read to the end in
  * one go. onFrame(bytesSoFar) after each frame, onBytes(bytesSoFar) after each chunk.
  */
-export async function streamExport(opened, levels, { onFrame, onBytes, signal } = {}) {
+export async function streamExport(opened, frames, { onFrame, onBytes, signal } = {}) {
   const { index, manifest } = opened;
   let bytes = 0;
   let frame = 0; // the next frame expected, by its index number
@@ -162,7 +163,7 @@ export async function streamExport(opened, levels, { onFrame, onBytes, signal } 
           `its index says ${from}→${to}`,
       );
     }
-    levels.addFrame(decoded);
+    frames.addFrame(decoded);
     frame++;
     onFrame?.(bytes);
   };

@@ -184,22 +184,24 @@ export function decodeBaseWedges(entry, nFaces) {
  * screen, and the render vertices of the level on screen.
  */
 export class WedgeLevels {
-  constructor(base, levels) {
+  constructor(base, levels, { decoder = true } = {}) {
     const { grid, count } = base.wedges;
     this.levels = levels;
     this.grid = grid;
     this.width = grid.width;
     const corners = 3 * levels.fFull;
-    // The received level (what frames are decoded against).
-    this.received = new Int32Array(corners);
-    this.received.set(base.wedges.corners);
-    this.receivedValues = new Int32Array(Math.max(16, 2 * count * this.width));
-    this.receivedValues.set(base.wedges.values);
+    // The received level (what frames are decoded against), unless decoded elsewhere.
+    if (decoder) {
+      this.received = new Int32Array(corners);
+      this.received.set(base.wedges.corners);
+      this.receivedValues = new Int32Array(Math.max(16, 2 * count * this.width));
+      this.receivedValues.set(base.wedges.values);
+    }
     this.nWedges = count;
     // The level on screen.
     this.cornerWedge = new Int32Array(corners);
     this.cornerWedge.set(base.wedges.corners);
-    this.values = new Int32Array(this.receivedValues.length);
+    this.values = new Int32Array(Math.max(16, 2 * count * this.width));
     this.values.set(base.wedges.values);
     const nSplits = levels.nFull - levels.nBase;
     this.levelWedges = new Uint32Array(nSplits + 1); // wedges of level nBase + k
@@ -433,6 +435,48 @@ export class WedgeLevels {
     this.valueChanges.set(from, 2 * width * n);
     this.valueChanges.set(values.subarray(wedge * width, (wedge + 1) * width), 2 * width * n + width);
     this.nValueChanges = n + 1;
+  }
+
+  // -- records (ProgressiveLevels.recordOf, addRecord) -----------------------------------
+
+  /** Copies of what splits a..b (split numbers) added, their new faces' corner wedges
+   * (faces firstFace..lastFace) and new wedges' values as born. */
+  recordOf(a, b, firstFace, lastFace) {
+    const width = this.width;
+    const [c0, c1] = [this.cornerOffsets[a], this.cornerOffsets[b]];
+    const [v0, v1] = [this.valueOffsets[a], this.valueOffsets[b]];
+    return {
+      levelWedges: this.levelWedges.slice(a + 1, b + 1),
+      cornerOffsets: this.cornerOffsets.slice(a + 1, b + 1),
+      cornerChanges: this.cornerChanges.slice(3 * c0, 3 * c1),
+      valueOffsets: this.valueOffsets.slice(a + 1, b + 1),
+      valueWedges: this.valueWedges.slice(v0, v1),
+      valueChanges: this.valueChanges.slice(2 * width * v0, 2 * width * v1),
+      corners: this.cornerWedge.slice(3 * firstFace, 3 * lastFace),
+      values: this.values.slice(width * this.levelWedges[a], width * this.levelWedges[b]),
+    };
+  }
+
+  /** Hold a record's wedge side (splits a..b, new faces from firstFace). */
+  addRecord(record, a, b, firstFace) {
+    const width = this.width;
+    this.levelWedges.set(record.levelWedges, a + 1);
+    this.cornerOffsets.set(record.cornerOffsets, a + 1);
+    this.valueOffsets.set(record.valueOffsets, a + 1);
+    const [c0, c1] = [this.cornerOffsets[a], this.cornerOffsets[b]];
+    const [v0, v1] = [this.valueOffsets[a], this.valueOffsets[b]];
+    this.cornerChanges = grow(this.cornerChanges, 3 * c1);
+    this.cornerChanges.set(record.cornerChanges, 3 * c0);
+    this.valueWedges = grow(this.valueWedges, v1);
+    this.valueWedges.set(record.valueWedges, v0);
+    this.valueChanges = grow(this.valueChanges, 2 * width * v1);
+    this.valueChanges.set(record.valueChanges, 2 * width * v0);
+    this.nCornerChanges = c1;
+    this.nValueChanges = v1;
+    this.cornerWedge.set(record.corners, 3 * firstFace);
+    this.values = grow(this.values, width * this.levelWedges[b]);
+    this.values.set(record.values, width * this.levelWedges[a]);
+    this.nWedges = this.levelWedges[b];
   }
 
   // -- level moves ---------------------------------------------------------------------

@@ -20,19 +20,11 @@ import zlib
 from pathlib import Path
 
 from .console import EXIT_OK, EXIT_USAGE, CliError, note, print_json, reading
+from .viewer_files import VIEWER_FILES, VIEWER_PACKAGES
 
 __all__ = ["add_export", "copy_viewer"]
 
 WEB_DIR = Path(__file__).resolve().parent / "web"
-# What the viewer's import map names in node_modules (index.html), and the licences.
-_VIEWER_PACKAGES = (
-    "three/build/three.module.js",
-    "three/build/three.core.js",
-    "three/examples/jsm/controls/OrbitControls.js",
-    "three/LICENSE",
-    "@msgpack/msgpack/dist.esm",
-    "@msgpack/msgpack/LICENSE",
-)
 
 
 def add_export(subparsers: argparse._SubParsersAction, remote_parent) -> None:
@@ -141,17 +133,19 @@ def copy_viewer(directory: Path) -> bool:
     """Copy the web viewer into ``directory``; False (and a note) when its npm packages
     are not installed (``make install`` runs ``npm ci``)."""
     modules = WEB_DIR / "node_modules"
-    missing = [name for name in _VIEWER_PACKAGES if not (modules / name).exists()]
+    missing = [name for name in VIEWER_PACKAGES if not (modules / name).exists()]
     if missing:
         note(
             f"the viewer's packages are not installed ({', '.join(missing)}); wrote the data "
             "only (run make install, or npm ci in client/web, then export again)"
         )
         return False
-    for name in ("index.html", "viewer.css"):
-        shutil.copy2(WEB_DIR / name, directory / name)
-    shutil.copytree(WEB_DIR / "js", directory / "js", dirs_exist_ok=True)
-    for name in _VIEWER_PACKAGES:
+    for pattern in VIEWER_FILES:
+        for source in WEB_DIR.glob(pattern):
+            target = directory / source.relative_to(WEB_DIR)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(source, target)
+    for name in VIEWER_PACKAGES:
         source, target = modules / name, directory / "node_modules" / name
         target.parent.mkdir(parents=True, exist_ok=True)
         if source.is_dir():

@@ -16,8 +16,18 @@ profile per run, so the HTTP cache is cold each time. Figures, from the page's o
 - bytes: the base mesh (msgpack) plus the split stream, as response bodies (the server
   sends no content coding), against the uploaded binary PLY and the server's own binary
   PLY of the full level;
+- longest task: the longest main-thread task (a ``longtask`` PerformanceObserver in the
+  page) from selecting the mesh to the full mesh drawn: what freezes the page while the
+  stream arrives;
 - server alone: the same two requests read by httpx in this process, without the
   browser, to tell the server's share from the viewer's.
+
+Beside each viewer run, in the same browser build with its own fresh profile, the static
+alternative: ``bench/web/draco_glb.html`` loads a Draco GLB of the same input (16 bits,
+level 7, ``bench.draco_glb``) with three.js's GLTFLoader + DRACOLoader from
+``python -m http.server`` on loopback; its full shown time runs from the load's start
+(the page's modules loaded, as the viewer's are when a mesh is chosen) to the first
+frame drawn with the mesh, with its own longest task.
 
 Writes bench/results/viewer-load.md (the machine and versions first).
 """
@@ -28,14 +38,20 @@ import argparse
 import os
 import statistics
 import subprocess
+import sys
 import tempfile
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from datetime import UTC, datetime
 from pathlib import Path
 
 import httpx
 
+import qem_core
+from bench.draco_glb import draco_glb
 from bench.machine import machine_header_lines
+from bench.meshes import compact_referenced
 from tests.e2e.conftest import ServerProcess
 from tests.e2e.test_viewer import chromium_page, find_chromium
 
@@ -46,6 +62,18 @@ LOAD_TIMEOUT_MS = 600_000
 
 _DONE = "() => { const s = window.qemViewer?.state; return s?.fullShownMs != null; }"
 _STATE = "window.qemViewer.state"
+_DRACO_DONE = "() => { const s = window.dracoPage; return s?.fullShownMs != null || !!s?.error; }"
+_DRACO_PAGE = Path(__file__).resolve().parent / "web" / "draco_glb.html"
+# Every main-thread task over 50 ms, from the page's first script on.
+_WATCH_LONG_TASKS = """
+window.longTasks = [];
+new PerformanceObserver((list) => {
+  for (const entry of list.getEntries()) window.longTasks.push([entry.startTime, entry.duration]);
+}).observe({ type: "longtask", buffered: true });
+"""
+_LONGEST = """([from, to]) => Math.max(0, ...window.longTasks
+  .filter(([start, duration]) => start + duration > from && start < to)
+  .map(([, duration]) => duration))"""
 # Moving the slider all the way down and back up, timed in the page.
 _SLIDE = """() => {
   const s = window.qemViewer.state;
@@ -84,12 +112,49 @@ def server_alone(url: str, n_base: int, n_full: int) -> dict:
 
 def one_run(page_url: str, profile: Path) -> dict:
     with chromium_page(profile) as page:
+        page.add_init_script(_WATCH_LONG_TASKS)
         page.goto(page_url)
         page.wait_for_function(_DONE, timeout=LOAD_TIMEOUT_MS)
         state = page.evaluate(_STATE)
+        window = [state["startedMs"], state["startedMs"] + state["fullShownMs"]]
+        longest = page.evaluate(_LONGEST, window)
         slide = page.evaluate(_SLIDE)
         assert not page.errors, page.errors
-    return {**state, **slide}
+    return {**state, **slide, "longestTaskMs": longest}
+
+
+@contextmanager
+def draco_site(mesh: Path, work: Path) -> Iterator[tuple[str, int]]:
+    """A static site on loopback (``python -m http.server``): the Draco GLB page, the GLB
+    of ``mesh`` and three.js; its URL and the GLB's size."""
+    loaded = qem_core.load_mesh(mesh)
+    glb = draco_glb(*compact_referenced(loaded.vertices, loaded.faces))
+    work.mkdir()
+    (work / "mesh.glb").write_bytes(glb)
+    (work / "index.html").write_bytes(_DRACO_PAGE.read_bytes())
+    (work / "node_modules").symlink_to(REPO / "client" / "web" / "node_modules")
+    process = subprocess.Popen(
+        [sys.executable, "-m", "http.server", "0", "--bind", "127.0.0.1", "-d", str(work)],
+        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+    )  # fmt: skip
+    try:
+        port = process.stdout.readline().split("port ")[1].split()[0]
+        yield f"http://127.0.0.1:{port}/index.html", len(glb)
+    finally:
+        process.terminate()
+        process.wait(10)
+        process.stdout.close()
+
+
+def draco_run(page_url: str, profile: Path) -> dict:
+    with chromium_page(profile) as page:
+        page.add_init_script(_WATCH_LONG_TASKS)
+        page.goto(page_url)
+        page.wait_for_function(_DRACO_DONE, timeout=LOAD_TIMEOUT_MS)
+        state = page.evaluate("window.dracoPage")
+        assert state["error"] is None and not page.errors, (state, page.errors)
+        window = [state["startedMs"], state["startedMs"] + state["fullShownMs"]]
+        return {**state, "longestTaskMs": page.evaluate(_LONGEST, window)}
 
 
 def chromium_version() -> str:
@@ -105,7 +170,9 @@ def mib(n: float) -> str:
     return f"{n / 2**20:.2f} MiB"
 
 
-def write_report(out: Path, mesh: Path, info: dict, runs: list[dict], alone: list[dict]):
+def write_report(
+    out: Path, mesh: Path, info: dict, runs: list[dict], alone: list[dict], draco: dict
+):
     full_bytes = [run["baseBytes"] + run["splitBytes"] for run in runs]
     ply_in = mesh.stat().st_size
     ply_out = alone[0]["ply_bytes"]
@@ -126,22 +193,39 @@ def write_report(out: Path, mesh: Path, info: dict, runs: list[dict], alone: lis
         "(`lod?vertices=min&format=msgpack`), then `splits?from=min&to=full` streamed.",
         "",
         "| run | base shown (from select) | base shown (from navigation) | all received "
-        "| full shown | bytes (base + splits) | slider full -> base | base -> full |",
-        "|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "| full shown | longest task | bytes (base + splits) | slider full -> base "
+        "| base -> full | Draco GLB full shown | its longest task |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
-    for i, run in enumerate(runs, 1):
+    for i, (run, glb) in enumerate(zip(runs, draco["runs"], strict=True), 1):
         lines.append(
             f"| {i} | {run['baseShownMs']:.0f} ms | {run['startedMs'] + run['baseShownMs']:.0f} ms "
             f"| {run['streamedMs']:.0f} ms | {run['fullShownMs']:.0f} ms "
+            f"| {run['longestTaskMs']:.0f} ms "
             f"| {full_bytes[i - 1]} ({run['baseBytes']} + {run['splitBytes']}) "
-            f"| {run['down']:.0f} ms | {run['up']:.0f} ms |"
+            f"| {run['down']:.0f} ms | {run['up']:.0f} ms "
+            f"| {glb['fullShownMs']:.0f} ms | {glb['longestTaskMs']:.0f} ms |"
         )
+    full_ratio = median(runs, "fullShownMs") / median(draco["runs"], "fullShownMs")
     lines += [
         f"| median | {median(runs, 'baseShownMs'):.0f} ms | "
         f"{statistics.median(r['startedMs'] + r['baseShownMs'] for r in runs):.0f} ms | "
         f"{median(runs, 'streamedMs'):.0f} ms | {median(runs, 'fullShownMs'):.0f} ms | "
+        f"{median(runs, 'longestTaskMs'):.0f} ms | "
         f"{statistics.median(full_bytes):.0f} | {median(runs, 'down'):.0f} ms | "
-        f"{median(runs, 'up'):.0f} ms |",
+        f"{median(runs, 'up'):.0f} ms | {median(draco['runs'], 'fullShownMs'):.0f} ms | "
+        f"{median(draco['runs'], 'longestTaskMs'):.0f} ms |",
+        "",
+        "Against the Draco GLB (issue #32's targets, medians):",
+        "",
+        f"- full detail: {median(runs, 'fullShownMs'):.0f} ms against "
+        f"{median(draco['runs'], 'fullShownMs'):.0f} ms, **{full_ratio:.2f}×** (aim ≤ 1.5×);",
+        f"- first paint (base shown from select): {median(runs, 'baseShownMs'):.0f} ms "
+        "(aim ≤ 300 ms);",
+        f"- longest main-thread task from select to full detail: "
+        f"{median(runs, 'longestTaskMs'):.0f} ms (aim ≤ 250 ms);",
+        f"- bytes: {full_bytes[0]} against the GLB's {draco['bytes']} "
+        f"({full_bytes[0] / draco['bytes']:.2f}×).",
         "",
         "Bytes against binary PLY:",
         "",
@@ -176,6 +260,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("no Chromium found (apt-get install -y chromium, or set QEM_CHROMIUM)")
     with tempfile.TemporaryDirectory(prefix="qem-viewer-load-") as scratch:
         server = ServerProcess(Path(scratch) / "data").start()
+        site = draco_site(args.mesh, Path(scratch) / "draco")
         try:
             with server.client() as qem:
                 mesh_id = qem.upload(args.mesh)
@@ -183,13 +268,18 @@ def main(argv: list[str] | None = None) -> int:
             url = f"{server.url}/v1/meshes/{mesh_id}"
             alone = [server_alone(url, info["min_vertices"], info["vertices"])]
             runs = []
+            draco: dict = {"runs": []}
+            glb_url, draco["bytes"] = site.__enter__()
             for i in range(args.runs):
                 runs.append(one_run(f"{server.url}/#mesh={mesh_id}", Path(scratch) / f"p{i}"))
                 print(f"run {i + 1}: {runs[-1]}", flush=True)
+                draco["runs"].append(draco_run(glb_url, Path(scratch) / f"d{i}"))
+                print(f"Draco GLB {i + 1}: {draco['runs'][-1]}", flush=True)
                 alone.append(server_alone(url, info["min_vertices"], info["vertices"]))
         finally:
+            site.__exit__(None, None, None)
             server.stop()
-    write_report(args.out, args.mesh, info, runs, alone)
+    write_report(args.out, args.mesh, info, runs, alone, draco)
     print(args.out.read_text())
     return 0
 

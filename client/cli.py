@@ -10,6 +10,7 @@
     qem ls                         list the server's meshes
     qem rm ID...                   delete meshes
     qem export ID|FILE.qpm DIR     a static export: base, stream, frame index, manifest, viewer
+    qem db upgrade                 create or migrate the PostgreSQL schema (QEM_DATABASE_URL)
 
 Commands against a server take ``--server URL`` (default $QEM_SERVER, else
 http://127.0.0.1:8000) and read a write token from $QEM_TOKEN; ``--json`` prints
@@ -49,6 +50,7 @@ from .console import (
     print_json,
     write_atomically,
 )
+from .db_commands import add_db, check_database
 from .export import add_export
 from .http import (
     DEFAULT_SERVER,
@@ -184,6 +186,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         )
         raise CliError(f"invalid settings: {problems}", EXIT_USAGE) from None
     configure_logging(args.log_level, settings.log_format)
+    check_database(settings)
     if not settings.tokens and not settings.allow_anonymous_writes and not _is_loopback(args.host):
         raise CliError(
             f"--host {args.host} is reachable from other machines, and without write tokens "
@@ -402,6 +405,7 @@ SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
     add_ls,
     add_rm,
     lambda subparsers: add_export(subparsers, _remote_parent),
+    add_db,
 ]
 
 

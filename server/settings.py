@@ -16,7 +16,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 __all__ = [
@@ -30,7 +30,10 @@ __all__ = [
 ]
 
 # Backend name -> "module:attribute" of its implementation, imported only when chosen.
-METADATA_BACKENDS = {"sqlite": "server.storage.sqlite:SqliteMetadataStore"}
+METADATA_BACKENDS = {
+    "sqlite": "server.storage.sqlite:SqliteMetadataStore",
+    "postgresql": "server.storage.postgres:PostgresMetadataStore",
+}
 BLOB_BACKENDS = {"local": "server.storage.files:LocalBlobStore"}
 JOBS_BACKENDS = {"local": "server.jobs.local:LocalJobQueue"}
 
@@ -48,6 +51,10 @@ class Settings(BaseSettings):
 
     data_dir : directory of the embedded storage (SQLite database, uploads, .qpm files);
         created on start.
+    database_url : ``postgresql://user:pass@host:port/db`` keeps the mesh records in
+        PostgreSQL (>= 15) instead of SQLite in data_dir, for several replicas and
+        workers sharing one database; its schema is made and migrated by ``qem db
+        upgrade``. Unset: SQLite.
     max_upload_bytes : uploads larger than this are refused with 413 (default 512 MiB).
     tokens : bearer tokens allowed to write (upload, delete), comma-separated in
         ``QEM_TOKENS``; empty means writes are open. Reads are always public.
@@ -85,6 +92,7 @@ class Settings(BaseSettings):
     )
 
     data_dir: Path = Path("data")
+    database_url: str | None = Field(None, repr=False)  # it may hold a password
     max_upload_bytes: int = Field(512 * 2**20, ge=1, le=64 * 2**30)
     tokens: Annotated[tuple[str, ...], NoDecode] = Field((), repr=False)
     allow_anonymous_writes: bool = False
@@ -149,6 +157,25 @@ class Settings(BaseSettings):
         if value not in known:
             raise ValueError(f"{info.field_name}={value!r} is not one of {sorted(known)}")
         return value
+
+    @field_validator("database_url")
+    @classmethod
+    def _check_database_url(cls, value: str | None) -> str | None:
+        if not value:
+            return None
+        scheme = value.partition("://")[0]
+        if scheme not in ("postgresql", "postgres") or "://" not in value:
+            raise ValueError(
+                f"QEM_DATABASE_URL must be postgresql://user:pass@host:port/db, not {scheme}://..."
+            )
+        return value
+
+    @model_validator(mode="after")
+    def _database_picks_the_backend(self) -> Settings:
+        # QEM_DATABASE_URL is the switch users set; the backend name follows from it.
+        if self.database_url and self.metadata_backend == "sqlite":
+            object.__setattr__(self, "metadata_backend", "postgresql")
+        return self
 
     @field_validator("demo_mesh")
     @classmethod

@@ -38,3 +38,24 @@ def fuzz_findings() -> Path:
     if not SHARED_FUZZ_FINDINGS.is_dir():
         pytest.skip(f"fuzz findings not found at {SHARED_FUZZ_FINDINGS} (../shared/fuzz-findings)")
     return SHARED_FUZZ_FINDINGS
+
+
+@pytest.fixture(scope="session")
+def postgres_server():
+    """A real PostgreSQL server on loopback for the whole session (tests/postgres_server.py);
+    tests using it skip, with the reason, where none can start."""
+    pytest.importorskip("psycopg", reason="psycopg is not installed (pip install -e '.[dev]')")
+    from .postgres_server import PostgresServer
+
+    try:
+        server = PostgresServer().start()
+    except RuntimeError as error:
+        pytest.skip(f"no PostgreSQL server could start: {error}")
+    yield server
+    server.stop()
+
+
+@pytest.fixture
+def postgres_url(postgres_server) -> str:
+    """The URL of a new, empty database (no schema yet) on the session's server."""
+    return postgres_server.database()

@@ -1,4 +1,5 @@
-"""The embedded storage: SQLite records with fenced state changes, atomic blob writes,
+"""The storage: records with fenced state changes in SQLite (embedded) and in a real
+PostgreSQL server (the scaled deployment; migrations by Alembic), atomic blob writes,
 garbage collection and recovery of interrupted builds."""
 
 from __future__ import annotations
@@ -8,13 +9,26 @@ import threading
 import pytest
 
 from server.jobs.base import JobQueue
+from server.migrations import head, upgrade
 from server.settings import Settings
-from server.storage import MeshRecord, Storage, open_storage, qpm_key, upload_key
+from server.storage import (
+    MeshRecord,
+    Storage,
+    StorageUnavailable,
+    open_storage,
+    qpm_key,
+    upload_key,
+)
 
 
-@pytest.fixture
-def settings(tmp_path) -> Settings:
-    return Settings(data_dir=tmp_path / "data", workers=1, _env_file=None)
+@pytest.fixture(params=["sqlite", "postgresql"])
+def settings(request, tmp_path) -> Settings:
+    """The embedded settings, and the same with QEM_DATABASE_URL on a migrated database."""
+    if request.param == "sqlite":
+        return Settings(data_dir=tmp_path / "data", workers=1, _env_file=None)
+    url = request.getfixturevalue("postgres_url")
+    upgrade(url)
+    return Settings(data_dir=tmp_path / "data", workers=1, database_url=url, _env_file=None)
 
 
 @pytest.fixture
@@ -131,9 +145,75 @@ def test_progress_is_clamped(storage):
 
 
 def test_newer_schema_is_refused(settings, storage):
-    storage.metadata._execute("PRAGMA user_version=99")
-    with pytest.raises(RuntimeError, match="newer than this server"):
+    if settings.database_url:
+        storage.metadata._execute("UPDATE alembic_version SET version_num = '9999'")
+        match = "revision 9999, this qem-lod needs"
+    else:
+        storage.metadata._execute("PRAGMA user_version=99")
+        match = "newer than this server"
+    with pytest.raises(RuntimeError, match=match):
         open_storage(settings)
+
+
+def test_a_database_without_the_schema_is_refused_until_upgraded(postgres_url, tmp_path):
+    settings = Settings(data_dir=tmp_path / "data", database_url=postgres_url, _env_file=None)
+    with pytest.raises(RuntimeError, match="no qem-lod schema yet.*qem db upgrade"):
+        open_storage(settings)
+    assert upgrade(postgres_url) == (None, head())
+    assert upgrade(postgres_url) == (head(), head())  # a second run changes nothing
+    opened = open_storage(settings)
+    assert opened.metadata.count() == 0
+    opened.close()
+
+
+def test_claims_from_many_connections_fence_each_other(settings):
+    """Replicas and workers on other machines: each its own connection to PostgreSQL."""
+    if not settings.database_url:
+        pytest.skip("one SQLite file: the threads share its connection")
+    stores = [open_storage(settings) for _ in range(6)]
+    try:
+        stores[0].metadata.create(_record())
+        wins = []
+        threads = [
+            threading.Thread(
+                target=lambda s=s, i=i: wins.append(s.metadata.claim("00000000000000aa", f"t{i}"))
+            )
+            for i, s in enumerate(stores)
+        ]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+        (winner,) = [win for win in wins if win is not None]
+        assert winner.attempts == 1
+        assert not stores[1].metadata.finish("00000000000000aa", "not-the-claim", qpm_key="x",
+                                             n_vertices=1, n_faces=1, n_base=1,
+                                             bbox=((0, 0, 0), (1, 1, 1)))  # fmt: skip
+    finally:
+        for store in stores:
+            store.close()
+
+
+def test_the_database_down_is_unavailable_then_recovers(postgres_server, tmp_path):
+    """PostgreSQL stopped: StorageUnavailable (a 503), nothing written; started again: the
+    same store answers, with what it held."""
+    url = postgres_server.database()
+    upgrade(url)
+    settings = Settings(data_dir=tmp_path / "data", database_url=url, _env_file=None)
+    storage = open_storage(settings)
+    try:
+        storage.metadata.create(_record())
+        postgres_server.pause()
+        try:
+            with pytest.raises(StorageUnavailable, match="database"):
+                storage.metadata.get("00000000000000aa")
+            with pytest.raises(StorageUnavailable):
+                storage.metadata.create(_record("00000000000000bb"))
+        finally:
+            postgres_server.resume()
+        assert [r.id for r in storage.metadata.records()] == ["00000000000000aa"]
+    finally:
+        storage.close()
 
 
 # -- blobs ---------------------------------------------------------------------------

@@ -1,0 +1,119 @@
+"""Mesh records in PostgreSQL (psycopg 3), for a deployment of several replicas and
+workers sharing one database (``QEM_DATABASE_URL=postgresql://...``).
+
+One connection per store object, guarded by a lock, in autocommit: each statement of
+`server.storage.sql` is its own transaction, and every state change checks the expected
+state in its WHERE clause, so replicas and workers on other machines never step on one
+another. A connection that fails is dropped and the call answers StorageUnavailable (a
+503 with Retry-After); the next call connects again, so the service recovers by itself
+when the database is back. The schema is Alembic's (server/migrations, ``qem db
+upgrade``); a store refuses to open on a database whose schema is not this code's.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+from .base import StorageUnavailable
+from .sql import SqlMetadataStore
+
+__all__ = ["PostgresMetadataStore", "SchemaMismatch", "check_schema"]
+
+CONNECT_TIMEOUT_S = 5
+
+
+class SchemaMismatch(RuntimeError):
+    """The database's schema is not the one this code reads (behind: run ``qem db
+    upgrade``; ahead: a newer qem-lod migrated it)."""
+
+
+def _connect(url: str):
+    import psycopg
+
+    return psycopg.connect(url, autocommit=True, connect_timeout=CONNECT_TIMEOUT_S)
+
+
+def check_schema(url: str) -> str:
+    """The database's revision, if it is this code's newest; else SchemaMismatch saying
+    what to do (StorageUnavailable when the database does not answer)."""
+    import psycopg
+
+    from ..migrations import current, head
+
+    try:
+        with _connect(url) as connection:
+            revision = current(connection)
+    except psycopg.Error as error:
+        raise StorageUnavailable("database", error) from error
+    newest = head()
+    if revision == newest:
+        return revision
+    if revision is None:
+        raise SchemaMismatch(
+            f"the database has no qem-lod schema yet (this qem-lod needs revision {newest}): "
+            "run `qem db upgrade` first"
+        )
+    raise SchemaMismatch(
+        f"the database schema is at revision {revision}, this qem-lod needs {newest}: run "
+        "`qem db upgrade` with this version (or run the version that migrated it)"
+    )
+
+
+class PostgresMetadataStore(SqlMetadataStore):
+    """Records in the database at ``url`` (``postgresql://user:pass@host:port/db``)."""
+
+    MARK = "%s"
+    GREATEST = "GREATEST"
+
+    def __init__(self, url: str) -> None:
+        self.url = url
+        self._lock = threading.Lock()
+        self._connection = None
+        check_schema(url)
+
+    @classmethod
+    def from_settings(cls, settings) -> PostgresMetadataStore:
+        return cls(settings.database_url)
+
+    @contextmanager
+    def _cursor(self) -> Iterator[Any]:
+        import psycopg
+
+        with self._lock:
+            try:
+                if self._connection is None or self._connection.closed:
+                    self._connection = _connect(self.url)
+                with self._connection.cursor() as cursor:
+                    yield cursor
+            except psycopg.IntegrityError:
+                raise  # a caller's bug (a duplicate id), not the database's state
+            except psycopg.Error as error:
+                # Down, restarted, the network gone: drop the connection, connect again
+                # on the next call. Autocommit: nothing was half-written.
+                self._drop()
+                raise StorageUnavailable("database", error) from error
+
+    def _drop(self) -> None:
+        if self._connection is not None:
+            try:
+                self._connection.close()
+            except Exception:  # noqa: BLE001 - already broken
+                pass
+            self._connection = None
+
+    def _fetch(self, sql: str, params: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
+        with self._cursor() as cursor:
+            cursor.execute(sql, params)
+            return cursor.fetchall()
+
+    def _execute(self, sql: str, params: tuple[Any, ...] = ()) -> int:
+        with self._cursor() as cursor:
+            cursor.execute(sql, params)
+            return cursor.rowcount
+
+    def close(self) -> None:
+        with self._lock:
+            self._drop()

@@ -71,11 +71,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.storage = storage
         app.state.jobs = jobs
         app.state.reads = ReadPath(storage, settings)
+        stop_watching = storage.metadata.watch_deletes(app.state.reads.evict)
         metrics.watch(storage.metadata.status_counts, app.state.reads.cache_stats)
         log.info("serving %s (%d worker(s))", settings.data_dir, settings.workers)
         try:
             yield
         finally:
+            await run_in_threadpool(stop_watching)
             metrics.unwatch()
             await run_in_threadpool(jobs.close)
             storage.close()

@@ -12,7 +12,7 @@ import qem_core
 from qem_core.levels import EncodedLevel, encode_level
 
 from .lru import CacheStats, LruCache
-from .storage import MeshRecord, Storage
+from .storage import MeshRecord, Storage, mesh_prefix
 
 __all__ = ["LodCache"]
 
@@ -57,7 +57,8 @@ class LodCache:
     def cache_stats(self) -> dict[str, CacheStats]:
         return {"meshes": self._meshes.stats(), "levels": self._lods.stats()}
 
-    def evict(self, record: MeshRecord) -> None:
-        """Forget everything cached for `record` (after it was deleted)."""
-        self._meshes.drop(lambda key: key == record.qpm_key)
-        self._lods.drop(lambda key: key[0] == record.qpm_key)
+    def evict(self, mesh_id: str) -> None:
+        """Forget everything cached of a mesh (after it was deleted)."""
+        prefix = mesh_prefix(mesh_id)
+        self._meshes.drop(lambda key: key.startswith(prefix))
+        self._lods.drop(lambda key: key[0].startswith(prefix))

@@ -4,8 +4,8 @@ progressive meshes and encoded levels (`LodCache`), stored split streams (`Strea
 A ready record changes only by being deleted, so once read it is kept: a request for a
 cached level or a stored stream then does no database round trip, no file read and no
 encoding, and its handler runs on the event loop without a thread hop. Deleting a mesh
-through this process evicts everything of it at once. (Replicas that share a database
-would each need to hear of a delete; the embedded deployment has one process serving.)
+evicts everything of it at once: through this process directly, through another replica
+sharing the database as its delete is announced (`MetadataStore.watch_deletes`).
 """
 
 from __future__ import annotations
@@ -55,10 +55,15 @@ class ReadPath:
             **self.streams.cache_stats(),
         }
 
-    def evict(self, record: MeshRecord) -> None:
-        """Forget everything of a deleted mesh."""
+    def evict(self, mesh_id: str | None) -> None:
+        """Forget everything of a deleted mesh (this process's delete, or another
+        replica's heard through `MetadataStore.watch_deletes`); None: deletes may have been
+        missed, so forget every record (each is read again from the database)."""
         with self._lock:
-            self._deleted.put(record.id, True)
-            self._ready.drop(lambda key: key == record.id)
-        self.levels.evict(record)
-        self.streams.evict(record)
+            if mesh_id is None:
+                self._ready.drop(lambda key: True)
+                return
+            self._deleted.put(mesh_id, True)
+            self._ready.drop(lambda key: key == mesh_id)
+        self.levels.evict(mesh_id)
+        self.streams.evict(mesh_id)

@@ -23,7 +23,7 @@ from qem_core.stored_stream import StreamIndex, encode_stored_stream
 
 from .lod_cache import LodCache
 from .lru import CacheStats, LruCache
-from .storage import BlobStore, MeshRecord, Storage, stream_index_key, stream_key
+from .storage import BlobStore, MeshRecord, Storage, mesh_prefix, stream_index_key, stream_key
 
 __all__ = ["StoredStream", "StreamCache", "write_stream"]
 
@@ -78,8 +78,9 @@ class StreamCache:
     def cache_stats(self) -> dict[str, CacheStats]:
         return {"streams": self._streams.stats()}
 
-    def evict(self, record: MeshRecord) -> None:
-        self._streams.drop(lambda key: key == record.qpm_key)
+    def evict(self, mesh_id: str) -> None:
+        prefix = mesh_prefix(mesh_id)
+        self._streams.drop(lambda key: key.startswith(prefix))
 
     def _load(self, record: MeshRecord, qpm: str) -> StoredStream:
         blobs = self._storage.blobs

@@ -407,7 +407,7 @@ def delete_mesh(mesh_id: str, _: WriterDep, storage: StorageDep, reads: ReadsDep
     record = storage.delete_mesh(mesh_id)
     if record is None:
         raise Problem("mesh-not-found", f"no mesh has id {mesh_id!r}")
-    reads.evict(record)
+    reads.evict(record.id)
     return Response(status_code=204)
 
 

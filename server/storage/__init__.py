@@ -40,6 +40,7 @@ __all__ = [
     "StorageUnavailable",
     "new_mesh_id",
     "new_token",
+    "mesh_prefix",
     "open_storage",
     "qpm_key",
     "stream_index_key",
@@ -54,8 +55,13 @@ def upload_key(mesh_id: str) -> str:
     return f"uploads/{mesh_id}"
 
 
+def mesh_prefix(mesh_id: str) -> str:
+    """Every blob of a mesh's builds starts so."""
+    return f"meshes/{mesh_id}/"
+
+
 def qpm_key(mesh_id: str, token: str) -> str:
-    return f"meshes/{mesh_id}/{token}.qpm"
+    return f"{mesh_prefix(mesh_id)}{token}.qpm"
 
 
 def stream_key(qpm: str) -> str:
@@ -79,7 +85,7 @@ class Storage:
         """Remove a mesh's record, then its blobs. Returns the record, or None."""
         record = self.metadata.delete(mesh_id)
         if record is not None:
-            for key in list(self.blobs.keys(f"meshes/{mesh_id}/")):
+            for key in list(self.blobs.keys(mesh_prefix(mesh_id))):
                 self.blobs.delete(key)
             self.blobs.delete(record.upload_key)
         return record

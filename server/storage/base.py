@@ -179,6 +179,14 @@ class MetadataStore(abc.ABC):
         server stopped it on purpose: the build did nothing wrong). False if the record
         is not building."""
 
+    def watch_deletes(self, on_delete) -> Any:
+        """Call ``on_delete(mesh_id)`` whenever a record is deleted by another process
+        (another replica on the same database), and ``on_delete(None)`` when deletes may
+        have been missed (the watch reconnected); returns a function that stops the
+        watch. Default: no other process serves this store (the embedded deployment),
+        so there is nothing to hear."""
+        return lambda: None
+
     def close(self) -> None:  # noqa: B027 - optional hook
         """Release connections."""
 

@@ -4,14 +4,16 @@ workers sharing one database (``QEM_DATABASE_URL=postgresql://...``).
 One connection per store object, guarded by a lock, in autocommit: each statement of
 `server.storage.sql` is its own transaction, and every state change checks the expected
 state in its WHERE clause, so replicas and workers on other machines never step on one
-another. A connection that fails is dropped and the call answers StorageUnavailable (a
-503 with Retry-After); the next call connects again, so the service recovers by itself
-when the database is back. The schema is Alembic's (server/migrations, ``qem db
+another. A delete is announced (NOTIFY) to every replica watching (`watch_deletes`),
+which forgets the mesh at once. A connection that fails is dropped and the call answers
+StorageUnavailable (a 503 with Retry-After); the next call connects again, so the service
+recovers by itself when the database is back. The schema is Alembic's (server/migrations, ``qem db
 upgrade``); a store refuses to open on a database whose schema is not this code's.
 """
 
 from __future__ import annotations
 
+import logging
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -23,6 +25,13 @@ from .sql import SqlMetadataStore
 __all__ = ["PostgresMetadataStore", "SchemaMismatch", "check_schema"]
 
 CONNECT_TIMEOUT_S = 5
+# Each delete is announced on this channel (NOTIFY); every replica LISTENs and forgets
+# the mesh, so none keeps answering for it from memory.
+DELETES_CHANNEL = "qem_mesh_deleted"
+LISTEN_POLL_S = 0.5  # how often the listening thread checks that it should stop
+LISTEN_RETRY_S = 1.0
+
+log = logging.getLogger("qem.storage")
 
 
 class SchemaMismatch(RuntimeError):
@@ -103,6 +112,43 @@ class PostgresMetadataStore(SqlMetadataStore):
             except Exception:  # noqa: BLE001 - already broken
                 pass
             self._connection = None
+
+    # -- deletes heard by every replica ----------------------------------------------
+
+    def _announce_delete(self, mesh_id: str) -> None:
+        try:
+            self._fetch("SELECT pg_notify(%s, %s)", (DELETES_CHANNEL, mesh_id))
+        except StorageUnavailable:
+            pass  # the watchers' connections broke too: they forget everything
+
+    def watch_deletes(self, on_delete) -> Any:
+        stop = threading.Event()
+        thread = threading.Thread(
+            target=self._listen, args=(on_delete, stop), name="qem-deletes", daemon=True
+        )
+        thread.start()
+
+        def stop_watching() -> None:
+            stop.set()
+            thread.join(LISTEN_POLL_S + CONNECT_TIMEOUT_S)
+
+        return stop_watching
+
+    def _listen(self, on_delete, stop: threading.Event) -> None:
+        import psycopg
+
+        while not stop.is_set():
+            try:
+                with _connect(self.url) as connection:
+                    connection.execute(f"LISTEN {DELETES_CHANNEL}")
+                    on_delete(None)  # whatever was deleted before this connection
+                    while not stop.is_set():
+                        for notice in connection.notifies(timeout=LISTEN_POLL_S):
+                            on_delete(notice.payload)
+            except psycopg.Error as error:
+                log.warning("the watch of deletes lost the database (%s); retrying", error)
+                on_delete(None)
+                stop.wait(LISTEN_RETRY_S)
 
     def _fetch(self, sql: str, params: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
         with self._cursor() as cursor:

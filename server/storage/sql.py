@@ -88,7 +88,12 @@ class SqlMetadataStore(MetadataStore):
 
     def delete(self, mesh_id: str) -> MeshRecord | None:
         found = self._records(f"DELETE FROM meshes WHERE id = ? {_RETURNING}", (mesh_id,))
+        if found:
+            self._announce_delete(mesh_id)
         return found[0] if found else None
+
+    def _announce_delete(self, mesh_id: str) -> None:  # noqa: B027 - optional hook
+        """Tell the other processes watching the database (`watch_deletes`)."""
 
     def unfinished(self) -> list[MeshRecord]:
         marks = ", ".join("?" for _ in UNFINISHED)

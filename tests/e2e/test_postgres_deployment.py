@@ -8,11 +8,14 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import time
 
 import httpx
 import pytest
 
 from .conftest import REPO, ServerProcess
+
+psycopg = pytest.importorskip("psycopg", reason="not installed (pip install -e '.[dev]')")
 
 SPOT = REPO / "server" / "demo" / "spot.obj"
 
@@ -82,3 +85,46 @@ def test_the_database_down_is_a_503_then_the_service_recovers(pg_serve, postgres
         assert [m["id"] for m in meshes] == [mesh_id]  # the refused upload left no record
         assert len(list((pg_serve.data_dir / "blobs" / "uploads").iterdir())) == 1  # no blob
         assert http.get(f"/v1/meshes/{mesh_id}/lod", params={"format": "ply"}).status_code == 200
+
+
+def test_two_replicas_share_one_database(postgres_server, tmp_path):
+    """Upload through replica A, read through B; a delete through B is a 404 on A within
+    moments, even for what A answers from memory; a replica restarted keeps everything."""
+    url = postgres_server.database()
+    assert _qem("db", "upgrade", env={"QEM_DATABASE_URL": url}).returncode == 0
+    # One machine here, so the blobs are one shared folder (QEM_BLOB_URL: not yet).
+    env = {"QEM_DATABASE_URL": url}
+    a = ServerProcess(tmp_path / "data", env).start()
+    b = ServerProcess(tmp_path / "data", env).start()
+    try:
+        with a.client() as via_a, b.client() as via_b:
+            kept = via_a.upload(SPOT)
+            gone = via_a.upload(SPOT)
+            for mesh_id in (kept, gone):
+                via_b.wait_ready(mesh_id, timeout=300)
+        with httpx.Client(timeout=60) as http:
+            lod = {"vertices": "100", "format": "ply"}
+            for replica in (a, b):
+                for _ in range(2):  # the second from memory (server/memory_answers.py)
+                    answer = http.get(f"{replica.url}/v1/meshes/{gone}/lod", params=lod)
+                    assert answer.status_code == 200
+                assert http.get(f"{replica.url}/v1/meshes/{gone}/splits").status_code == 200
+            with psycopg.connect(url) as connection:
+                attempts = connection.execute("SELECT attempts FROM meshes").fetchall()
+            assert attempts == [(1,), (1,)]  # each built once, by one of the replicas
+
+            assert http.delete(f"{b.url}/v1/meshes/{gone}").status_code == 204
+            deleted = time.monotonic()
+            while http.get(f"{a.url}/v1/meshes/{gone}/lod", params=lod).status_code != 404:
+                assert time.monotonic() - deleted < 2.0, "replica A still serves a deleted mesh"
+                time.sleep(0.005)
+            for path in ("", "/lod", "/splits"):
+                assert http.get(f"{a.url}/v1/meshes/{gone}{path}").status_code == 404
+
+            a.stop()
+            a.start()
+            assert http.get(f"{a.url}/v1/meshes/{kept}/lod", params=lod).status_code == 200
+            assert [m["id"] for m in http.get(f"{a.url}/v1/meshes").json()["meshes"]] == [kept]
+    finally:
+        a.stop()
+        b.stop()

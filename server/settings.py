@@ -34,7 +34,10 @@ METADATA_BACKENDS = {
     "sqlite": "server.storage.sqlite:SqliteMetadataStore",
     "postgresql": "server.storage.postgres:PostgresMetadataStore",
 }
-BLOB_BACKENDS = {"local": "server.storage.files:LocalBlobStore"}
+BLOB_BACKENDS = {
+    "local": "server.storage.files:LocalBlobStore",
+    "s3": "server.storage.s3:S3BlobStore",
+}
 JOBS_BACKENDS = {"local": "server.jobs.local:LocalJobQueue"}
 
 # A bearer token shorter than this is guessable; refuse it rather than run half-protected.
@@ -55,6 +58,10 @@ class Settings(BaseSettings):
         PostgreSQL (>= 15) instead of SQLite in data_dir, for several replicas and
         workers sharing one database; its schema is made and migrated by ``qem db
         upgrade``. Unset: SQLite.
+    blob_url : ``s3://bucket/prefix`` keeps uploads, .qpm files and streams in an
+        S3-compatible store (endpoint, region and credentials from ``AWS_ENDPOINT_URL``,
+        ``AWS_REGION``, ``AWS_ACCESS_KEY_ID``, ``AWS_SECRET_ACCESS_KEY``) instead of
+        data_dir, which then holds only the spool of transfers in progress. Unset: data_dir.
     max_upload_bytes : uploads larger than this are refused with 413 (default 512 MiB).
     tokens : bearer tokens allowed to write (upload, delete), comma-separated in
         ``QEM_TOKENS``; empty means writes are open. Reads are always public.
@@ -93,6 +100,7 @@ class Settings(BaseSettings):
 
     data_dir: Path = Path("data")
     database_url: str | None = Field(None, repr=False)  # it may hold a password
+    blob_url: str | None = None
     max_upload_bytes: int = Field(512 * 2**20, ge=1, le=64 * 2**30)
     tokens: Annotated[tuple[str, ...], NoDecode] = Field((), repr=False)
     allow_anonymous_writes: bool = False
@@ -170,11 +178,24 @@ class Settings(BaseSettings):
             )
         return value
 
+    @field_validator("blob_url")
+    @classmethod
+    def _check_blob_url(cls, value: str | None) -> str | None:
+        if not value:
+            return None
+        from .storage.s3 import parse_s3_url
+
+        parse_s3_url(value)
+        return value
+
     @model_validator(mode="after")
-    def _database_picks_the_backend(self) -> Settings:
-        # QEM_DATABASE_URL is the switch users set; the backend name follows from it.
+    def _urls_pick_the_backends(self) -> Settings:
+        # QEM_DATABASE_URL and QEM_BLOB_URL are the switches users set; the backend
+        # names follow from them.
         if self.database_url and self.metadata_backend == "sqlite":
             object.__setattr__(self, "metadata_backend", "postgresql")
+        if self.blob_url and self.blob_backend == "local":
+            object.__setattr__(self, "blob_backend", "s3")
         return self
 
     @field_validator("demo_mesh")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import os
 from pathlib import Path
 
@@ -40,17 +41,21 @@ def fuzz_findings() -> Path:
     return SHARED_FUZZ_FINDINGS
 
 
+def _started_or_skipped(module: str, factory: str, what: str, needs: str):
+    """A server of tests/<module>.py started, or the test skipped saying why."""
+    pytest.importorskip(needs, reason=f"{needs} is not installed (pip install -e '.[dev]')")
+    server_class = getattr(importlib.import_module(f"tests.{module}"), factory)
+    try:
+        return server_class().start()
+    except RuntimeError as error:
+        pytest.skip(f"no {what} could start: {error}")
+
+
 @pytest.fixture(scope="session")
 def postgres_server():
     """A real PostgreSQL server on loopback for the whole session (tests/postgres_server.py);
     tests using it skip, with the reason, where none can start."""
-    pytest.importorskip("psycopg", reason="psycopg is not installed (pip install -e '.[dev]')")
-    from .postgres_server import PostgresServer
-
-    try:
-        server = PostgresServer().start()
-    except RuntimeError as error:
-        pytest.skip(f"no PostgreSQL server could start: {error}")
+    server = _started_or_skipped("postgres_server", "PostgresServer", "PostgreSQL", "psycopg")
     yield server
     server.stop()
 
@@ -59,3 +64,22 @@ def postgres_server():
 def postgres_url(postgres_server) -> str:
     """The URL of a new, empty database (no schema yet) on the session's server."""
     return postgres_server.database()
+
+
+@pytest.fixture(scope="session")
+def s3_server():
+    """A real S3-compatible store (SeaweedFS) on loopback for the whole session
+    (tests/s3_server.py); tests using it skip, with the reason, where none can start."""
+    server = _started_or_skipped("s3_server", "S3Server", "S3 store", "obstore")
+    yield server
+    server.stop()
+
+
+@pytest.fixture
+def s3_env(s3_server, monkeypatch) -> dict[str, str]:
+    """This process pointed at a fresh prefix of the session's store (QEM_BLOB_URL and
+    AWS_*, also set in os.environ for the store's client); the variables, for servers."""
+    env = s3_server.env()
+    for name, value in env.items():
+        monkeypatch.setenv(name, value)
+    return env

@@ -13,10 +13,11 @@ from __future__ import annotations
 import os
 import pwd
 import shutil
-import socket
 import subprocess
 import tempfile
 from pathlib import Path
+
+from .ports import free_ports
 
 __all__ = ["PostgresServer", "find_postgres_bin"]
 
@@ -32,12 +33,6 @@ def find_postgres_bin() -> Path | None:
     return Path(initdb).parent if initdb else None
 
 
-def _free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return probe.getsockname()[1]
-
-
 class PostgresServer:
     """One cluster: `start()`, `database()` for a new empty database's URL, `stop()`,
     and `pause()`/`resume()` (the server stopped and started again on the same port, for
@@ -50,7 +45,7 @@ class PostgresServer:
         self.bin = bin_dir
         self.root = Path(tempfile.mkdtemp(prefix="qem-postgres-"))
         self.data = self.root / "data"
-        self.port = _free_port()
+        (self.port,) = free_ports(1)
         self.owner = None
         if os.geteuid() == 0:
             try:

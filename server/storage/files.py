@@ -18,7 +18,7 @@ from typing import BinaryIO
 
 from .base import BlobStore, BlobWriter, StorageUnavailable, check_blob_key
 
-__all__ = ["LocalBlobStore"]
+__all__ = ["LocalBlobStore", "clear_folder"]
 
 _TMP = ".tmp"
 
@@ -101,14 +101,7 @@ class LocalBlobStore(BlobStore):
             raise PermissionError(f"the blob store's folder {self._tmp} is not writable")
 
     def sweep(self) -> int:
-        removed = 0
-        for leftover in self._tmp.iterdir():
-            if leftover.is_dir():
-                shutil.rmtree(leftover, ignore_errors=True)
-            else:
-                leftover.unlink(missing_ok=True)
-            removed += 1
-        return removed
+        return clear_folder(self._tmp)
 
     def _publish(self, source: Path, target: Path) -> None:
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -151,6 +144,19 @@ class _FileWriter(BlobWriter):
         self._done = True
         self._file.close()
         self._temp.unlink(missing_ok=True)
+
+
+def clear_folder(folder: Path) -> int:
+    """Remove everything in ``folder`` (leftovers of writes that never finished); how
+    many entries."""
+    removed = 0
+    for leftover in folder.iterdir():
+        if leftover.is_dir():
+            shutil.rmtree(leftover, ignore_errors=True)
+        else:
+            leftover.unlink(missing_ok=True)
+        removed += 1
+    return removed
 
 
 def _fsync_file(path: Path) -> None:

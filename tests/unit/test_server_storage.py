@@ -21,14 +21,24 @@ from server.storage import (
 )
 
 
-@pytest.fixture(params=["sqlite", "postgresql"])
+@pytest.fixture(params=["sqlite", "postgresql", "postgresql+s3"])
 def settings(request, tmp_path) -> Settings:
-    """The embedded settings, and the same with QEM_DATABASE_URL on a migrated database."""
+    """The embedded settings; with QEM_DATABASE_URL on a migrated database; and with
+    QEM_BLOB_URL too, on a real S3 store (SeaweedFS)."""
     if request.param == "sqlite":
         return Settings(data_dir=tmp_path / "data", workers=1, _env_file=None)
     url = request.getfixturevalue("postgres_url")
     upgrade(url)
-    return Settings(data_dir=tmp_path / "data", workers=1, database_url=url, _env_file=None)
+    blob_url = request.getfixturevalue("s3_env")["QEM_BLOB_URL"] if "s3" in request.param else None
+    return Settings(data_dir=tmp_path / "data", workers=1, database_url=url, blob_url=blob_url,
+                    _env_file=None)  # fmt: skip
+
+
+def _scratch_files(settings: Settings) -> list:
+    """Files of writes in progress: the local store's staging folder, the S3 store's
+    spool."""
+    folder = settings.data_dir / ("spool" if settings.blob_url else "blobs/.tmp")
+    return list(folder.iterdir())
 
 
 @pytest.fixture
@@ -235,7 +245,7 @@ def test_failed_write_leaves_nothing(storage, settings):
         writer.write(b"half a file")
         raise OSError("client went away")
     assert not storage.blobs.exists("uploads/00000000000000aa")
-    assert list((settings.data_dir / "blobs").rglob("*")) == [settings.data_dir / "blobs/.tmp"]
+    assert list(storage.blobs.keys()) == [] and _scratch_files(settings) == []
 
 
 def test_staged_path_publishes_on_success_only(storage):
@@ -254,7 +264,7 @@ def test_crashed_write_is_swept_on_start(settings, storage):
     writer.write(b"partial")
     writer._file.close()  # the process dies here: no commit, no abort
     assert storage.collect_garbage() == 1
-    assert list((settings.data_dir / "blobs" / ".tmp").iterdir()) == []
+    assert _scratch_files(settings) == []
     assert not storage.blobs.exists("uploads/00000000000000aa")
 
 

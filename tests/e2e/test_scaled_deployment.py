@@ -1,8 +1,9 @@
-"""``qem serve`` with its records in a real PostgreSQL server (QEM_DATABASE_URL): it
-refuses a database without this version's schema, saying to run ``qem db upgrade``; after
-it, uploads build, levels and streams are served, deletes hold; with the database
-stopped, readiness and requests are 503 problems naming it, and the service recovers
-with nothing lost when it is back."""
+"""``qem serve`` with its records in a real PostgreSQL server (QEM_DATABASE_URL) and its
+blobs in a real S3 store (QEM_BLOB_URL, SeaweedFS): it refuses a database without this
+version's schema, saying to run ``qem db upgrade``; after it, uploads build, levels and
+streams are served, deletes hold; with the database or the store stopped, readiness and
+requests are 503 problems naming it, nothing is half-written, and the service recovers
+when it is back; replicas share one database."""
 
 from __future__ import annotations
 
@@ -12,6 +13,8 @@ import time
 
 import httpx
 import pytest
+
+from server.storage.s3 import S3BlobStore, parse_s3_url
 
 from .conftest import REPO, ServerProcess
 
@@ -28,6 +31,13 @@ def _qem(*args: str, env: dict[str, str]) -> subprocess.CompletedProcess:
     )  # fmt: skip
 
 
+def _migrated(postgres_server) -> str:
+    """A new database with this version's schema (``qem db upgrade``); its URL."""
+    url = postgres_server.database()
+    assert _qem("db", "upgrade", env={"QEM_DATABASE_URL": url}).returncode == 0
+    return url
+
+
 def test_serve_refuses_a_database_without_the_schema(postgres_url, tmp_path):
     env = {"QEM_DATABASE_URL": postgres_url}
     refused = _qem("serve", "--port", "0", "--data-dir", str(tmp_path / "data"), env=env)
@@ -40,11 +50,13 @@ def test_serve_refuses_a_database_without_the_schema(postgres_url, tmp_path):
     assert again.returncode == 0 and "nothing to do" in again.stdout
 
 
-@pytest.fixture
-def pg_serve(postgres_server, tmp_path):
-    url = postgres_server.database()
-    assert _qem("db", "upgrade", env={"QEM_DATABASE_URL": url}).returncode == 0
-    server = ServerProcess(tmp_path / "data", {"QEM_DATABASE_URL": url}).start()
+@pytest.fixture(params=["local blobs", "s3"])
+def pg_serve(request, postgres_server, tmp_path):
+    env = {"QEM_DATABASE_URL": _migrated(postgres_server)}
+    if request.param == "s3":
+        env.update(request.getfixturevalue("s3_server").env())
+    server = ServerProcess(tmp_path / "data", env).start()
+    server.blobs_in_s3 = request.param == "s3"
     yield server
     server.stop()
 
@@ -64,34 +76,10 @@ def test_a_mesh_builds_serves_and_deletes_on_postgresql(pg_serve, postgres_serve
         assert http.get(f"/v1/meshes/{mesh_id}").status_code == 404
 
 
-def test_the_database_down_is_a_503_then_the_service_recovers(pg_serve, postgres_server):
-    with pg_serve.client() as qem:
-        mesh_id = qem.upload(SPOT)
-        qem.wait_ready(mesh_id, timeout=300)
-    with httpx.Client(base_url=pg_serve.url, timeout=60) as http:
-        postgres_server.pause()
-        try:
-            ready = http.get("/readyz")
-            assert ready.status_code == 503 and "database" in ready.json()["detail"]
-            listed = http.get("/v1/meshes")
-            assert listed.status_code == 503 and "Retry-After" in listed.headers
-            assert listed.headers["content-type"].startswith("application/problem+json")
-            upload = http.post("/v1/meshes", files={"file": ("spot.obj", SPOT.read_bytes())})
-            assert upload.status_code == 503, upload.text
-        finally:
-            postgres_server.resume()
-        assert http.get("/readyz").status_code == 200
-        meshes = http.get("/v1/meshes").json()["meshes"]
-        assert [m["id"] for m in meshes] == [mesh_id]  # the refused upload left no record
-        assert len(list((pg_serve.data_dir / "blobs" / "uploads").iterdir())) == 1  # no blob
-        assert http.get(f"/v1/meshes/{mesh_id}/lod", params={"format": "ply"}).status_code == 200
-
-
 def test_two_replicas_share_one_database(postgres_server, tmp_path):
     """Upload through replica A, read through B; a delete through B is a 404 on A within
     moments, even for what A answers from memory; a replica restarted keeps everything."""
-    url = postgres_server.database()
-    assert _qem("db", "upgrade", env={"QEM_DATABASE_URL": url}).returncode == 0
+    url = _migrated(postgres_server)
     # One machine here, so the blobs are one shared folder (QEM_BLOB_URL: not yet).
     env = {"QEM_DATABASE_URL": url}
     a = ServerProcess(tmp_path / "data", env).start()
@@ -128,3 +116,41 @@ def test_two_replicas_share_one_database(postgres_server, tmp_path):
     finally:
         a.stop()
         b.stop()
+
+
+@pytest.mark.parametrize("part", ["database", "blob store"])
+def test_a_part_down_is_a_503_with_nothing_half_written_then_recovery(
+    part, postgres_server, s3_server, tmp_path
+):
+    env = {"QEM_DATABASE_URL": _migrated(postgres_server), **s3_server.env()}
+    server = ServerProcess(tmp_path / "data", env).start()
+    down = postgres_server if part == "database" else s3_server
+    try:
+        with server.client() as qem:
+            kept = qem.upload(SPOT)
+            qem.wait_ready(kept, timeout=300)
+        with httpx.Client(base_url=server.url, timeout=60) as http:
+            down.pause()
+            try:
+                ready = http.get("/readyz")
+                assert ready.status_code == 503 and part in ready.json()["detail"]
+                upload = http.post("/v1/meshes", files={"file": ("spot.obj", SPOT.read_bytes())})
+                assert upload.status_code == 503 and "Retry-After" in upload.headers, upload.text
+                assert upload.headers["content-type"].startswith("application/problem+json")
+                if part == "database":
+                    assert http.get("/v1/meshes").status_code == 503
+            finally:
+                down.resume()
+            assert http.get("/readyz").status_code == 200
+            # The refused upload left no record and no blob.
+            assert [m["id"] for m in http.get("/v1/meshes").json()["meshes"]] == [kept]
+            bucket, prefix = parse_s3_url(env["QEM_BLOB_URL"])
+            with pytest.MonkeyPatch.context() as patch:
+                for name, value in env.items():
+                    patch.setenv(name, value)
+                blobs = S3BlobStore(bucket, prefix, tmp_path / "spool")
+                assert list(blobs.keys("uploads/")) == [f"uploads/{kept}"]
+            answer = http.get(f"/v1/meshes/{kept}/lod", params={"format": "glb"})
+            assert answer.status_code == 200 and answer.content.startswith(b"glTF")
+    finally:
+        server.stop()

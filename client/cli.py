@@ -11,6 +11,7 @@
     qem rm ID...                   delete meshes
     qem export ID|FILE.qpm DIR     a static export: base, stream, frame index, manifest, viewer
     qem db upgrade                 create or migrate the PostgreSQL schema (QEM_DATABASE_URL)
+    qem worker [--slots N]         run builds from the PostgreSQL queue until SIGTERM
 
 Commands against a server take ``--server URL`` (default $QEM_SERVER, else
 http://127.0.0.1:8000) and read a write token from $QEM_TOKEN; ``--json`` prints
@@ -50,7 +51,6 @@ from .console import (
     print_json,
     write_atomically,
 )
-from .db_commands import add_db, check_database
 from .export import add_export
 from .http import (
     DEFAULT_SERVER,
@@ -61,6 +61,7 @@ from .http import (
     QemTimeoutError,
 )
 from .local_commands import add_build, add_info, add_lod, add_simplify
+from .scale_commands import add_db, add_worker, check_database
 
 __all__ = ["SUBCOMMANDS", "build_parser", "main"]
 
@@ -406,6 +407,7 @@ SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
     add_rm,
     lambda subparsers: add_export(subparsers, _remote_parent),
     add_db,
+    add_worker,
 ]
 
 

@@ -38,7 +38,10 @@ BLOB_BACKENDS = {
     "local": "server.storage.files:LocalBlobStore",
     "s3": "server.storage.s3:S3BlobStore",
 }
-JOBS_BACKENDS = {"local": "server.jobs.local:LocalJobQueue"}
+JOBS_BACKENDS = {
+    "local": "server.jobs.local:LocalJobQueue",
+    "postgresql": "server.jobs.postgres:PostgresJobQueue",
+}
 
 # A bearer token shorter than this is guessable; refuse it rather than run half-protected.
 MIN_TOKEN_LENGTH = 16
@@ -78,6 +81,9 @@ class Settings(BaseSettings):
         read from the store once, its CRC checked, then served from memory).
     max_build_attempts : a build interrupted this many times (restart, worker crash) is
         marked failed instead of being requeued again.
+    worker_stale_s : with PostgreSQL, a build whose worker has not beaten its heartbeat
+        for this long (killed, its machine gone) is taken back by another worker; workers
+        beat every sixth of it.
     max_build_seconds : a build still running after this long is stopped and its mesh
         marked failed with the reason, so that no input (a pathological mesh, a huge one)
         holds a worker indefinitely; dragon (871k faces) takes about 2 s here.
@@ -110,6 +116,7 @@ class Settings(BaseSettings):
     stream_at_build: bool = True
     stream_cache_bytes: int = Field(256 * 2**20, ge=0, le=64 * 2**30)
     max_build_attempts: int = Field(3, ge=1, le=100)
+    worker_stale_s: float = Field(30.0, ge=1.0, le=3600.0, allow_inf_nan=False)
     max_build_seconds: float = Field(600.0, gt=0.0, le=7 * 86400.0, allow_inf_nan=False)
     progress_interval_s: float = Field(0.5, gt=0.0, le=60.0, allow_inf_nan=False)
     worker_keep_memory_bytes: int = Field(0, ge=0, le=2**31 - 1)
@@ -196,6 +203,10 @@ class Settings(BaseSettings):
             object.__setattr__(self, "metadata_backend", "postgresql")
         if self.blob_url and self.blob_backend == "local":
             object.__setattr__(self, "blob_backend", "s3")
+        # With a database every server and worker shares, builds go through its queue:
+        # a pool inside one server would requeue the others' running builds on start.
+        if self.database_url:
+            object.__setattr__(self, "jobs_backend", "postgresql")
         return self
 
     @field_validator("demo_mesh")

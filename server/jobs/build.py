@@ -14,10 +14,10 @@ from collections.abc import Callable
 import qem_core
 from qem_core import codecs
 
-from ..storage import Storage, new_token, qpm_key
+from ..storage import MeshRecord, Storage, new_token, qpm_key
 from ..stored_streams import write_stream
 
-__all__ = ["BuildAborted", "BuildTimedOut", "run_build"]
+__all__ = ["BuildAborted", "BuildTimedOut", "build_claimed", "run_build"]
 
 log = logging.getLogger("qem.jobs")
 
@@ -100,6 +100,30 @@ def run_build(
     record = storage.metadata.claim(mesh_id, token)
     if record is None:
         return "skipped"
+    return build_claimed(
+        storage,
+        record,
+        token,
+        progress_interval=progress_interval,
+        should_abort=should_abort,
+        max_seconds=max_seconds,
+        store_stream=store_stream,
+    )
+
+
+def build_claimed(
+    storage: Storage,
+    record: MeshRecord,
+    token: str,
+    *,
+    progress_interval: float = 0.5,
+    should_abort: Callable[[], bool] | None = None,
+    max_seconds: float | None = None,
+    store_stream: bool = True,
+) -> str:
+    """`run_build` of a record already claimed by the attempt `token` (a queue that
+    claims as it takes, server/jobs/postgres.py)."""
+    mesh_id = record.id
     started = time.monotonic()
     deadline = None if max_seconds is None else started + max_seconds
     progress = _ProgressWriter(storage, mesh_id, token, progress_interval, should_abort,

@@ -30,10 +30,10 @@ from ..request_log import configure_logging
 from ..settings import Settings
 from ..storage import Storage, open_storage
 from .base import JobQueue
-from .build import run_build
+from .build import build_claimed, run_build
 from .memory import keep_freed_memory
 
-__all__ = ["LocalJobQueue"]
+__all__ = ["LocalJobQueue", "build_in_worker", "stop_pool", "worker_pool"]
 
 log = logging.getLogger("qem.jobs")
 
@@ -86,23 +86,39 @@ def _exit_when_orphaned() -> None:
     os._exit(0)
 
 
-def _build_in_worker(mesh_id: str) -> tuple[str, float]:
-    """The build's outcome and its seconds."""
+def build_in_worker(mesh_id: str, token: str | None = None) -> tuple[str, float]:
+    """The build's outcome and its seconds. With `token`, the record was claimed by the
+    caller (the PostgreSQL queue claims as it takes); without, the build claims it."""
     assert _worker_storage is not None and _worker_settings is not None
     _worker_idle.clear()
     started = time.monotonic()
+    options = {
+        "progress_interval": _worker_settings.progress_interval_s,
+        "max_seconds": _worker_settings.max_build_seconds,
+        "store_stream": _worker_settings.stream_at_build,
+        "should_abort": _parent_is_gone,
+    }
     try:
-        outcome = run_build(
-            _worker_storage,
-            mesh_id,
-            progress_interval=_worker_settings.progress_interval_s,
-            max_seconds=_worker_settings.max_build_seconds,
-            store_stream=_worker_settings.stream_at_build,
-            should_abort=_parent_is_gone,
-        )
+        if token is None:
+            outcome = run_build(_worker_storage, mesh_id, **options)
+        else:
+            record = _worker_storage.metadata.get(mesh_id)
+            outcome = "skipped"
+            if record is not None and record.claim == token:
+                outcome = build_claimed(_worker_storage, record, token, **options)
         return outcome, time.monotonic() - started
     finally:
         _worker_idle.set()
+
+
+def worker_pool(settings: Settings, processes: int) -> ProcessPoolExecutor:
+    """`processes` build worker processes (spawned, each with its own storage)."""
+    return ProcessPoolExecutor(
+        max_workers=processes,
+        mp_context=multiprocessing.get_context("spawn"),
+        initializer=_init_worker,
+        initargs=(settings,),
+    )
 
 
 class LocalJobQueue(JobQueue):
@@ -127,7 +143,7 @@ class LocalJobQueue(JobQueue):
                 raise RuntimeError("the job queue is not running")
             generation = self._generation
             try:
-                future = self._executor.submit(_build_in_worker, mesh_id)
+                future = self._executor.submit(build_in_worker, mesh_id)
             except BrokenProcessPool:
                 # A worker died while idle (killed, out of memory): no build was running to
                 # report it, and without a new pool every later upload would stay queued.
@@ -149,18 +165,13 @@ class LocalJobQueue(JobQueue):
             if self.storage.metadata.release(mesh_id):
                 log.info("handed the build of mesh %s back to the queue", mesh_id)
         if executor is not None:
-            _stop(executor)
+            stop_pool(executor)
 
     # -- internals ----------------------------------------------------------------------
 
     def _new_executor(self) -> ProcessPoolExecutor:
         self._generation += 1
-        return ProcessPoolExecutor(
-            max_workers=self.settings.workers,
-            mp_context=multiprocessing.get_context("spawn"),
-            initializer=_init_worker,
-            initargs=(self.settings,),
-        )
+        return worker_pool(self.settings, self.settings.workers)
 
     def _on_done(self, mesh_id: str, generation: int, future: Future) -> None:
         with self._lock:
@@ -195,7 +206,7 @@ class LocalJobQueue(JobQueue):
             self.recover()
 
 
-def _stop(executor: ProcessPoolExecutor) -> None:
+def stop_pool(executor: ProcessPoolExecutor) -> None:
     """Shut the pool down now, interrupting running builds.
 
     Python 3.11 has no public way to stop busy workers (3.14 adds terminate_workers), and

@@ -47,14 +47,15 @@ def current(connection) -> str | None:
     return row[0] if row else None
 
 
-def upgrade(url: str) -> tuple[str | None, str]:
-    """Bring the database at ``url`` to the newest revision; (before, after)."""
+def upgrade(url: str, revision: str = "head") -> tuple[str | None, str]:
+    """Bring the database at ``url`` to `revision` (the newest by default); (before,
+    after)."""
     import psycopg
     from alembic import command
 
     with psycopg.connect(url, autocommit=True, connect_timeout=10) as connection:
         before = current(connection)
-    command.upgrade(_config(url), "head")
-    return before, head()
+    command.upgrade(_config(url), revision)
+    return before, head() if revision == "head" else revision
 
 

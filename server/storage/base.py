@@ -169,9 +169,9 @@ class MetadataStore(abc.ABC):
         without, only if the record is unfinished. False if nothing changed."""
 
     @abc.abstractmethod
-    def requeue(self, mesh_id: str) -> bool:
+    def requeue(self, mesh_id: str, *, token: str | None = None) -> bool:
         """An unfinished record -> queued with no owner (attempts kept); False if the
-        record is missing or finished."""
+        record is missing or finished. With `token`, only if that attempt owns it."""
 
     @abc.abstractmethod
     def release(self, mesh_id: str) -> bool:

@@ -15,12 +15,13 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
-from .base import StorageUnavailable
-from .sql import SqlMetadataStore
+from .base import MeshRecord, StorageUnavailable
+from .sql import RETURNING, SqlMetadataStore
 
 __all__ = ["PostgresMetadataStore", "SchemaMismatch", "check_schema"]
 
@@ -113,19 +114,77 @@ class PostgresMetadataStore(SqlMetadataStore):
                 pass
             self._connection = None
 
+    # -- the build queue (server/jobs/postgres.py) -----------------------------------
+
+    def claim_next(self, token: str) -> MeshRecord | None:
+        """Start a build attempt on the oldest queued record, as `claim` does, its
+        heartbeat now; None if nothing is queued. Workers on any machine take different
+        records (SKIP LOCKED)."""
+        found = self._records(
+            "UPDATE meshes SET status = 'building', attempts = attempts + 1, progress = 0, "
+            "claim = ?, error = NULL, updated_at = ?, heartbeat_at = ? WHERE id = ("
+            "SELECT id FROM meshes WHERE status = 'queued' ORDER BY created_at, id "
+            f"LIMIT 1 FOR UPDATE SKIP LOCKED) {RETURNING}",
+            (token, time.time(), time.time()),
+        )
+        return found[0] if found else None
+
+    def heartbeat(self, mesh_id: str, token: str) -> bool:
+        """The attempt `token` is alive; False if it no longer owns the record."""
+        sql = (
+            "UPDATE meshes SET heartbeat_at = %s "
+            "WHERE id = %s AND status = 'building' AND claim = %s"
+        )
+        return self._execute(sql, (time.time(), mesh_id, token)) == 1
+
+    def take_back_stalled(self, stale_s: float, max_attempts: int) -> list[tuple[str, str]]:
+        """Builds whose worker stopped beating (killed, machine gone) for `stale_s`:
+        requeued, or failed with the reason once they used `max_attempts`. Returns
+        (mesh id, new status) of each."""
+        before = time.time() - stale_s
+        stalled = "status = 'building' AND COALESCE(heartbeat_at, updated_at) < %s"
+        reason = (
+            f"the build's worker stopped answering {{attempts}} time(s) (killed, out of "
+            f"memory, or its machine gone); gave up after {max_attempts} attempt(s)"
+        )
+        failed = self._fetch(
+            "UPDATE meshes SET status = 'failed', claim = NULL, updated_at = %s, "
+            f"error = replace(%s, '{{attempts}}', attempts::text) WHERE {stalled} "
+            "AND attempts >= %s RETURNING id",
+            (time.time(), reason, before, max_attempts),
+        )
+        requeued = self._fetch(
+            "UPDATE meshes SET status = 'queued', claim = NULL, progress = 0, updated_at = %s "
+            f"WHERE {stalled} AND attempts < %s RETURNING id",
+            (time.time(), before, max_attempts),
+        )
+        return [(row[0], "failed") for row in failed] + [(row[0], "queued") for row in requeued]
+
     # -- deletes heard by every replica ----------------------------------------------
 
     def _announce_delete(self, mesh_id: str) -> None:
-        try:
-            self._fetch("SELECT pg_notify(%s, %s)", (DELETES_CHANNEL, mesh_id))
-        except StorageUnavailable:
-            pass  # the watchers' connections broke too: they forget everything
+        self.announce(DELETES_CHANNEL, mesh_id)
 
     def watch_deletes(self, on_delete) -> Any:
+        return self.watch(DELETES_CHANNEL, on_delete)
+
+    def announce(self, channel: str, payload: str = "") -> None:
+        """NOTIFY `channel` (best effort: a watcher that misses it hears None)."""
+        try:
+            self._fetch("SELECT pg_notify(%s, %s)", (channel, payload))
+        except StorageUnavailable:
+            pass  # the watchers' connections broke too: they hear None
+
+    def watch(self, channel: str, on_notice) -> Any:
+        """Call ``on_notice(payload)`` for each NOTIFY on `channel`, from a thread with a
+        connection of its own, and ``on_notice(None)`` whenever notices may have been
+        missed (on connecting, and after the database was lost); returns a function that
+        stops the watch."""
         stop = threading.Event()
         thread = threading.Thread(
-            target=self._listen, args=(on_delete, stop), name="qem-deletes", daemon=True
-        )
+            target=self._listen, args=(channel, on_notice, stop), name=f"qem-{channel}",
+            daemon=True,
+        )  # fmt: skip
         thread.start()
 
         def stop_watching() -> None:
@@ -134,20 +193,20 @@ class PostgresMetadataStore(SqlMetadataStore):
 
         return stop_watching
 
-    def _listen(self, on_delete, stop: threading.Event) -> None:
+    def _listen(self, channel: str, on_notice, stop: threading.Event) -> None:
         import psycopg
 
         while not stop.is_set():
             try:
                 with _connect(self.url) as connection:
-                    connection.execute(f"LISTEN {DELETES_CHANNEL}")
-                    on_delete(None)  # whatever was deleted before this connection
+                    connection.execute(f"LISTEN {channel}")
+                    on_notice(None)  # whatever was announced before this connection
                     while not stop.is_set():
                         for notice in connection.notifies(timeout=LISTEN_POLL_S):
-                            on_delete(notice.payload)
+                            on_notice(notice.payload)
             except psycopg.Error as error:
-                log.warning("the watch of deletes lost the database (%s); retrying", error)
-                on_delete(None)
+                log.warning("the watch of %s lost the database (%s); retrying", channel, error)
+                on_notice(None)
                 stop.wait(LISTEN_RETRY_S)
 
     def _fetch(self, sql: str, params: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:

@@ -19,14 +19,14 @@ from typing import Any
 
 from .base import UNFINISHED, MeshRecord, MetadataStore
 
-__all__ = ["COLUMNS", "SqlMetadataStore"]
+__all__ = ["COLUMNS", "RETURNING", "SqlMetadataStore"]
 
 COLUMNS = (
     "id name upload_key upload_bytes status progress options attempts claim qpm_key "
     "n_vertices n_faces n_base bbox error created_at updated_at"
 ).split()
 _SELECT = f"SELECT {', '.join(COLUMNS)} FROM meshes"
-_RETURNING = f"RETURNING {', '.join(COLUMNS)}"
+RETURNING = f"RETURNING {', '.join(COLUMNS)}"
 
 
 class SqlMetadataStore(MetadataStore):
@@ -87,7 +87,7 @@ class SqlMetadataStore(MetadataStore):
         return int(self._fetch("SELECT COUNT(*) FROM meshes")[0][0])
 
     def delete(self, mesh_id: str) -> MeshRecord | None:
-        found = self._records(f"DELETE FROM meshes WHERE id = ? {_RETURNING}", (mesh_id,))
+        found = self._records(f"DELETE FROM meshes WHERE id = ? {RETURNING}", (mesh_id,))
         if found:
             self._announce_delete(mesh_id)
         return found[0] if found else None
@@ -105,7 +105,7 @@ class SqlMetadataStore(MetadataStore):
         found = self._records(
             "UPDATE meshes SET status = 'building', attempts = attempts + 1, progress = 0, "
             "claim = ?, error = NULL, updated_at = ? WHERE id = ? AND status = 'queued' "
-            f"{_RETURNING}",
+            f"{RETURNING}",
             (token, time.time(), mesh_id),
         )
         return found[0] if found else None
@@ -146,15 +146,12 @@ class SqlMetadataStore(MetadataStore):
         )
         return self._execute(self._sql(sql), (time.time(), mesh_id)) == 1
 
-    def requeue(self, mesh_id: str) -> bool:
-        return self._update(
-            mesh_id,
-            "status IN ('queued', 'building')",
-            (),
-            status="queued",
-            claim=None,
-            progress=0.0,
-        )
+    def requeue(self, mesh_id: str, *, token: str | None = None) -> bool:
+        if token is None:
+            where, params = "status IN ('queued', 'building')", ()
+        else:
+            where, params = "status = 'building' AND claim = ?", (token,)
+        return self._update(mesh_id, where, params, status="queued", claim=None, progress=0.0)
 
 
 def _from_record(record: MeshRecord) -> dict[str, Any]:

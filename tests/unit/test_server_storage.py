@@ -5,6 +5,7 @@ garbage collection and recovery of interrupted builds."""
 from __future__ import annotations
 
 import threading
+import time
 
 import pytest
 
@@ -174,6 +175,53 @@ def test_a_database_without_the_schema_is_refused_until_upgraded(postgres_url, t
     opened = open_storage(settings)
     assert opened.metadata.count() == 0
     opened.close()
+
+
+def test_a_database_at_the_first_schema_is_migrated_with_its_records(postgres_url, tmp_path):
+    import psycopg
+
+    assert upgrade(postgres_url, "0001") == (None, "0001")  # as the first release left it
+    with psycopg.connect(postgres_url, autocommit=True) as connection:
+        connection.execute(
+            "INSERT INTO meshes (id, name, upload_key, upload_bytes, status, created_at, "
+            "updated_at) VALUES ('00000000000000aa', 'old.ply', 'uploads/00000000000000aa', "
+            "3, 'queued', 1, 1)"
+        )
+    settings = Settings(data_dir=tmp_path / "data", database_url=postgres_url, _env_file=None)
+    with pytest.raises(RuntimeError, match="at revision 0001, this qem-lod needs"):
+        open_storage(settings)
+    assert upgrade(postgres_url) == ("0001", head())
+    opened = open_storage(settings)
+    try:
+        assert opened.metadata.get("00000000000000aa").name == "old.ply"
+        # The queue of the new schema takes it.
+        assert opened.metadata.claim_next("t").id == "00000000000000aa"
+        assert opened.metadata.heartbeat("00000000000000aa", "t")
+        assert not opened.metadata.heartbeat("00000000000000aa", "other")
+    finally:
+        opened.close()
+
+
+def test_stalled_builds_are_taken_back_or_failed(postgres_url, tmp_path):
+    upgrade(postgres_url)
+    settings = Settings(data_dir=tmp_path / "data", database_url=postgres_url, _env_file=None)
+    opened = open_storage(settings)
+    metadata = opened.metadata
+    try:
+        metadata.create(_record("00000000000000aa"))
+        metadata.create(_record("00000000000000bb", attempts=2))
+        assert metadata.claim_next("a").id == "00000000000000aa"  # the oldest first
+        assert metadata.claim_next("b").id == "00000000000000bb"
+        assert metadata.claim_next("c") is None  # nothing left queued
+        assert metadata.take_back_stalled(60.0, 3) == []  # both beat just now
+        time.sleep(0.05)
+        taken = dict(metadata.take_back_stalled(0.01, 3))
+        assert taken == {"00000000000000aa": "queued", "00000000000000bb": "failed"}
+        assert "gave up after 3 attempt(s)" in metadata.get("00000000000000bb").error
+        assert not metadata.heartbeat("00000000000000aa", "a")  # its claim is gone
+        assert metadata.claim_next("d").attempts == 2
+    finally:
+        opened.close()
 
 
 def test_claims_from_many_connections_fence_each_other(settings):

@@ -1,10 +1,14 @@
-"""``qem db upgrade``: create or migrate the PostgreSQL schema of the scaled deployment.
+"""The scaled deployment's commands: ``qem db upgrade`` and ``qem worker``.
 
     QEM_DATABASE_URL=postgresql://qem:secret@db:5432/qem qem db upgrade
+    QEM_DATABASE_URL=... QEM_BLOB_URL=s3://bucket/prefix qem worker --slots 2
 
-Run it once before the first ``qem serve`` on a new database, and after installing a
-qem-lod whose schema is newer: servers refuse to start on a schema that is not theirs
-(server/migrations). The embedded SQLite store needs nothing of the kind.
+``qem db upgrade`` creates or migrates the PostgreSQL schema: run it once before the
+first ``qem serve`` on a new database, and after installing a qem-lod whose schema is
+newer (servers and workers refuse a schema that is not theirs, server/migrations).
+``qem worker`` takes builds from the database's queue (server/jobs/postgres.py) on this
+machine until SIGTERM or Ctrl-C, which hand its running builds back to the queue. The
+embedded deployment (SQLite, builds inside ``qem serve``) needs neither.
 """
 
 from __future__ import annotations
@@ -13,7 +17,7 @@ import argparse
 
 from .console import EXIT_OK, EXIT_UNREACHABLE, EXIT_USAGE, CliError, print_json
 
-__all__ = ["add_db", "check_database"]
+__all__ = ["add_db", "add_worker", "check_database"]
 
 
 def add_db(subparsers: argparse._SubParsersAction) -> None:
@@ -25,6 +29,46 @@ def add_db(subparsers: argparse._SubParsersAction) -> None:
     )
     upgrade.add_argument("--json", action="store_true", help="print the result as JSON")
     upgrade.set_defaults(run=cmd_db_upgrade)
+
+
+def add_worker(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "worker", help="run builds from the PostgreSQL queue (QEM_DATABASE_URL)"
+    )
+    parser.add_argument(
+        "--slots", type=int, default=None,
+        help="builds at once, each in a process of its own (default $QEM_WORKERS)",
+    )  # fmt: skip
+    parser.add_argument("--log-level", default="info", choices=["debug", "info", "warning"])
+    parser.set_defaults(run=cmd_worker)
+
+
+def cmd_worker(args: argparse.Namespace) -> int:
+    from pydantic import ValidationError
+
+    from server.jobs.postgres import WorkerPool
+    from server.request_log import configure_logging
+    from server.settings import Settings
+    from server.storage import open_storage
+
+    try:
+        settings = Settings(**({"workers": args.slots} if args.slots is not None else {}))
+    except ValidationError as exc:
+        raise CliError("; ".join(error["msg"] for error in exc.errors()), EXIT_USAGE) from None
+    if not settings.database_url:
+        raise CliError(
+            "qem worker takes builds from the PostgreSQL queue: set QEM_DATABASE_URL (the "
+            "embedded deployment builds inside qem serve)",
+            EXIT_USAGE,
+        )
+    configure_logging(args.log_level, settings.log_format)
+    check_database(settings)
+    storage = open_storage(settings)
+    try:
+        WorkerPool(settings, storage, settings.workers).run_until_signalled()
+    finally:
+        storage.close()
+    return EXIT_OK
 
 
 def _database_url(given: str | None) -> str:

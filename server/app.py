@@ -37,6 +37,10 @@ __all__ = ["create_app"]
 
 log = logging.getLogger("qem.server")
 
+# Unreferenced blobs younger than this are left to a later start where the storage is
+# shared: an upload through another replica writes its blob just before its record.
+_SHARED_GARBAGE_AGE_S = 3600.0
+
 _EXPOSED_HEADERS = sorted(
     {*meshes.LOD_HEADERS, *meshes.SPLIT_HEADERS, "Content-Length", "Content-Range", "Accept-Ranges"}
 )
@@ -46,7 +50,8 @@ def _start(settings: Settings, metrics: Metrics) -> tuple[Storage, JobQueue]:
     settings.data_dir.mkdir(parents=True, exist_ok=True)
     storage = open_storage(settings)
     try:
-        storage.collect_garbage()
+        # A database others share: their uploads in flight have blobs without records yet.
+        storage.collect_garbage(min_age_s=_SHARED_GARBAGE_AGE_S if settings.database_url else 0.0)
         jobs = open_jobs(settings, storage)
         jobs.on_finished = metrics.build_finished
         jobs.start()

@@ -14,6 +14,7 @@
 from __future__ import annotations
 
 import logging
+import time
 from dataclasses import dataclass
 
 from ..settings import BLOB_BACKENDS, METADATA_BACKENDS, Settings, load_backend
@@ -95,16 +96,26 @@ class Storage:
         for key in (qpm, stream_key(qpm), stream_index_key(qpm)):
             self.blobs.delete(key)
 
-    def collect_garbage(self) -> int:
+    def collect_garbage(self, min_age_s: float = 0.0) -> int:
         """Remove temporary files of interrupted writes and blobs that no record refers
         to (a crash between writing a blob and its record, a deleted mesh whose orphaned
-        build still wrote). Call on start, before serving. Returns the number removed."""
+        build still wrote), if written at least `min_age_s` ago. Call on start, before
+        serving; where other processes share the storage (replicas, workers), with an
+        age past any write in flight: an upload's blob is written just before its
+        record. Returns the number removed."""
         removed = self.blobs.sweep()
         records = {record.id: record for record in self.metadata.records()}
+        before = time.time() - min_age_s
         for key in list(self.blobs.keys()):
-            if not _referenced(key, records):
-                self.blobs.delete(key)
-                removed += 1
+            if _referenced(key, records):
+                continue
+            try:
+                if min_age_s and self.blobs.modified(key) > before:
+                    continue
+            except FileNotFoundError:
+                continue
+            self.blobs.delete(key)
+            removed += 1
         if removed:
             log.info("removed %d unreferenced or temporary blob(s)", removed)
         return removed

@@ -256,6 +256,11 @@ class BlobStore(abc.ABC):
         """Keys of committed blobs starting with `prefix`."""
 
     @abc.abstractmethod
+    def modified(self, key: str) -> float:
+        """When the blob was last written (seconds since the epoch). Raises
+        FileNotFoundError."""
+
+    @abc.abstractmethod
     def sweep(self) -> int:
         """Remove leftovers of writes that never committed (after a crash); returns how
         many. Call only when no write is in flight, i.e. on start."""

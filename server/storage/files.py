@@ -84,6 +84,9 @@ class LocalBlobStore(BlobStore):
             parent = parent.parent
         return True
 
+    def modified(self, key: str) -> float:
+        return self.path(key).stat().st_mtime
+
     def keys(self, prefix: str = "") -> Iterator[str]:
         for dirpath, dirnames, filenames in os.walk(self.root):
             if Path(dirpath) == self.root:

@@ -14,6 +14,7 @@ retries bounded in time, so a request never hangs on a store that is down.
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -67,8 +68,11 @@ class S3BlobStore(BlobStore):
         self._store = S3Store(
             bucket, prefix=prefix or None, client_options=options, retry_config=_RETRIES
         )
-        self._spool = Path(spool)
-        self._spool.mkdir(parents=True, exist_ok=True)
+        # A folder of this process's own in the spool: replicas on one machine may share
+        # a data directory, and one starting must not sweep another's transfers.
+        self._spools = Path(spool)
+        self._spools.mkdir(parents=True, exist_ok=True)
+        self._spool = Path(tempfile.mkdtemp(dir=self._spools, prefix=f"{os.getpid()}-"))
 
     @classmethod
     def from_settings(cls, settings) -> S3BlobStore:
@@ -130,6 +134,12 @@ class S3BlobStore(BlobStore):
             return False
         return True
 
+    def modified(self, key: str) -> float:
+        import obstore
+
+        with _answering():
+            return obstore.head(self._store, check_blob_key(key))["last_modified"].timestamp()
+
     def delete(self, key: str) -> bool:
         import obstore
 
@@ -156,7 +166,24 @@ class S3BlobStore(BlobStore):
             obstore.put(self._store, _PING_KEY, b"")
 
     def sweep(self) -> int:
-        return clear_folder(self._spool)
+        """This process's spool, and those of processes that are gone."""
+        removed = clear_folder(self._spool)
+        for folder in self._spools.iterdir():
+            owner = folder.name.partition("-")[0]
+            if folder != self._spool and not (owner.isdigit() and _alive(int(owner))):
+                shutil.rmtree(folder, ignore_errors=True)
+                removed += 1
+        return removed
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # another user's process
+    return True
 
 
 class _SpooledWriter(BlobWriter):

@@ -78,14 +78,13 @@ def test_a_mesh_builds_serves_and_deletes_on_postgresql(pg_serve, postgres_serve
         assert http.get(f"/v1/meshes/{mesh_id}").status_code == 404
 
 
-def test_two_replicas_share_one_database(postgres_server, tmp_path):
+def test_two_replicas_share_one_database(postgres_server, s3_server, tmp_path):
     """Upload through replica A, read through B; a delete through B is a 404 on A within
     moments, even for what A answers from memory; a replica restarted keeps everything."""
     url = _migrated(postgres_server)
-    # One machine here, so the blobs are one shared folder (QEM_BLOB_URL: not yet).
-    env = {"QEM_DATABASE_URL": url}
-    a = ServerProcess(tmp_path / "data", env).start()
-    b = ServerProcess(tmp_path / "data", env).start()
+    env = {"QEM_DATABASE_URL": url, **s3_server.env()}  # as on two machines: own folders
+    a = ServerProcess(tmp_path / "a", env).start()
+    b = ServerProcess(tmp_path / "b", env).start()
     try:
         with a.client() as via_a, b.client() as via_b:
             kept = via_a.upload(SPOT)

@@ -4,6 +4,7 @@ garbage collection and recovery of interrupted builds."""
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 
@@ -39,7 +40,7 @@ def _scratch_files(settings: Settings) -> list:
     """Files of writes in progress: the local store's staging folder, the S3 store's
     spool."""
     folder = settings.data_dir / ("spool" if settings.blob_url else "blobs/.tmp")
-    return list(folder.iterdir())
+    return [path for path in folder.rglob("*") if path.is_file()]
 
 
 @pytest.fixture
@@ -345,6 +346,28 @@ def test_garbage_collection_keeps_what_records_use(storage):
     assert sorted(storage.blobs.keys()) == sorted(
         [ready.upload_key, ready.qpm_key, building.upload_key]
     )
+
+
+def test_garbage_younger_than_the_age_given_is_kept(storage):
+    """A shared store: another replica's upload has its blob a moment before its record."""
+    _put(storage, upload_key("00000000000000bb"))
+    assert storage.collect_garbage(min_age_s=3600) == 0
+    assert storage.blobs.exists(upload_key("00000000000000bb"))
+    assert storage.collect_garbage() == 1
+    assert not storage.blobs.exists(upload_key("00000000000000bb"))
+
+
+def test_a_spool_is_swept_only_when_its_process_is_gone(settings, storage, tmp_path):
+    if not settings.blob_url:
+        pytest.skip("the local store stages in its own folder")
+    spools = settings.data_dir / "spool"
+    dead = spools / f"{2**22 + 1}-x"  # above Linux's largest pid: no such process
+    live = spools / f"{os.getppid()}-y"  # a process that is alive (this one's parent)
+    for folder in (dead, live):
+        folder.mkdir()
+        (folder / "write-1").write_bytes(b"half")
+    storage.collect_garbage()
+    assert not dead.exists() and (live / "write-1").exists()
 
 
 def test_delete_mesh_removes_record_and_blobs(storage):

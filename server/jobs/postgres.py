@@ -101,8 +101,8 @@ class WorkerPool:
                     log.warning("build slot: the queue does not answer (%s)", error)
                     record = None
                 if record is None:
-                    with self._wake:
-                        self._wake.wait(_POLL_S)
+                    with self._wake:  # woken by an upload's notice, else look again soon
+                        self._wake.wait(min(_POLL_S, self.settings.worker_stale_s / 3))
                     continue
                 executor = self._build(executor, record.id, token, record.attempts)
         finally:

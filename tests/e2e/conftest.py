@@ -109,6 +109,25 @@ class ServerProcess:
                 self._started.set()
         self._started.set()  # exited: do not make start() wait for nothing
 
+    def blob_keys(self) -> list[str]:
+        """The keys of the blobs this server stored, in its data directory or its S3
+        store (``QEM_BLOB_URL`` in its environment)."""
+        if not self.env.get("QEM_BLOB_URL"):
+            root = self.data_dir / "blobs"
+            return sorted(
+                path.relative_to(root).as_posix()
+                for path in root.rglob("*")
+                if path.is_file() and path.relative_to(root).parts[0] != ".tmp"
+            )
+        from server.storage.s3 import S3BlobStore, parse_s3_url
+
+        with pytest.MonkeyPatch.context() as patch:
+            for name, value in self.env.items():
+                if name.startswith("AWS_"):
+                    patch.setenv(name, value)
+            store = S3BlobStore(*parse_s3_url(self.env["QEM_BLOB_URL"]), self.data_dir / "peek")
+            return sorted(store.keys())
+
     def client(self, token: str | None = None) -> QemClient:
         return QemClient(self.url, token=token)
 
@@ -148,11 +167,22 @@ def start_server(tmp_path) -> Iterator:
         server.stop()
 
 
-@pytest.fixture(scope="module")
-def server(tmp_path_factory) -> Iterator[ServerProcess]:
-    """One server for the tests of a module (uploads limited to 4 MiB)."""
+@pytest.fixture(scope="module", params=["embedded", "scaled"])
+def server(request, tmp_path_factory) -> Iterator[ServerProcess]:
+    """One server for the tests of a module (uploads limited to 4 MiB), in each
+    deployment: embedded (SQLite, the data directory, builds in the server) and scaled
+    (PostgreSQL, an S3 store and a queue, real servers on loopback; the server builds with
+    its own slot)."""
+    env = {"QEM_MAX_UPLOAD_BYTES": str(4 * 2**20)}
+    if request.param == "scaled":
+        from server.migrations import upgrade
+
+        url = request.getfixturevalue("postgres_server").database()
+        upgrade(url)
+        env.update({"QEM_DATABASE_URL": url, **request.getfixturevalue("s3_server").env()})
     data_dir = tmp_path_factory.mktemp("qem") / "data"
-    running = ServerProcess(data_dir, {"QEM_MAX_UPLOAD_BYTES": str(4 * 2**20)}).start()
+    running = ServerProcess(data_dir, env).start()
+    running.deployment = request.param
     yield running
     running.stop()
 

@@ -131,11 +131,10 @@ def test_delete(server, qem):
     path = shared_mesh("spot.ply")
     mesh_id = qem.upload(path)
     qem.wait_ready(mesh_id, timeout=300)
-    blobs = server.data_dir / "blobs"
-    assert any(mesh_id in p.as_posix() for p in blobs.rglob("*") if p.is_file())
+    assert any(mesh_id in key for key in server.blob_keys())
     qem.delete(mesh_id)
     with pytest.raises(QemHTTPError) as caught:
         qem.info(mesh_id)
     assert caught.value.status == 404 and caught.value.type == "/problems/mesh-not-found"
-    assert not any(mesh_id in p.as_posix() for p in blobs.rglob("*"))
+    assert not any(mesh_id in key for key in server.blob_keys())
     assert mesh_id not in [mesh["id"] for mesh in qem.list()]

@@ -10,10 +10,14 @@ sharing the database as its delete is announced (`MetadataStore.watch_deletes`).
 
 from __future__ import annotations
 
+import logging
 import threading
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 from .lod_cache import LodCache
 from .lru import CacheStats, LruCache
+from .problems import Problem
 from .settings import Settings
 from .storage import MeshRecord, Storage
 from .stored_streams import StreamCache
@@ -21,6 +25,8 @@ from .stored_streams import StreamCache
 __all__ = ["ReadPath"]
 
 _READY_RECORDS = 4096
+T = TypeVar("T")
+log = logging.getLogger("qem.server")
 
 
 class ReadPath:
@@ -46,6 +52,25 @@ class ReadPath:
                 if self._deleted.peek(mesh_id) is None:
                     self._ready.put(mesh_id, record)
         return record
+
+    def load(self, read: Callable[..., T], record: MeshRecord, *args: Any) -> T:
+        """``read(record, *args)``: a level, the stream or the progressive mesh of a ready
+        mesh (blocking). If its .qpm is gone from the store, the mesh fails with the
+        reason (the record says so from now on, other meshes are unaffected) and the
+        request is answered with that problem."""
+        try:
+            return read(record, *args)
+        except FileNotFoundError:
+            reason = (
+                "its progressive mesh is missing from the blob store (lost, or removed "
+                "outside qem-lod); upload the mesh again"
+            )
+            if self.storage.metadata.lose(record.id, record.qpm_key or "", reason):
+                log.error("mesh %s failed: %s", record.id, reason)
+            self.evict(record.id)
+            raise Problem(
+                "mesh-failed", f"mesh {record.id}: {reason}", reason=reason
+            ) from None
 
     def cache_stats(self) -> dict[str, CacheStats]:
         """Each in-memory cache of the read path by name (for /metrics)."""

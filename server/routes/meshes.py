@@ -253,7 +253,7 @@ async def get_lod(
         return _not_modified(etag, {"X-Lod-Vertices": str(n)})
     lod = reads.levels.cached_lod(record, n, format)
     if lod is None:
-        lod = await run_in_threadpool(reads.levels.lod, record, n, format)
+        lod = await run_in_threadpool(reads.load, reads.levels.lod, record, n, format)
     return Response(
         lod.content, media_type=codecs.MEDIA_TYPES[format], headers=lod_headers(record, n, lod)
     )
@@ -323,7 +323,7 @@ async def get_splits(
         )
     stream = reads.streams.cached(record)
     if stream is None:
-        stream = await run_in_threadpool(reads.streams.get, record)
+        stream = await run_in_threadpool(reads.load, reads.streams.get, record)
     headers, body = splits_answer(record, stream, n1, n2)
     etag = headers["ETag"]
     if _matches(if_none_match, etag):
@@ -382,7 +382,7 @@ async def get_texture(
     record = await _find_ready(reads, mesh_id)
     # Whether there is a texture first: ``If-None-Match: *`` on a mesh without one is a
     # 404, not a 304 (the progressive mesh is cached, so this rarely loads anything).
-    pm = await run_in_threadpool(reads.levels.progressive_mesh, record)
+    pm = await run_in_threadpool(reads.load, reads.levels.progressive_mesh, record)
     if pm.texture is None:
         raise Problem("texture-not-found", f"mesh {mesh_id} has no texture image")
     etag = _etag(record, "texture")

@@ -169,6 +169,11 @@ class MetadataStore(abc.ABC):
         without, only if the record is unfinished. False if nothing changed."""
 
     @abc.abstractmethod
+    def lose(self, mesh_id: str, qpm_key: str, reason: str) -> bool:
+        """ready -> failed with `reason`, if the record is still ready with this .qpm
+        (its build's blob was lost from the store). False if nothing changed."""
+
+    @abc.abstractmethod
     def requeue(self, mesh_id: str, *, token: str | None = None) -> bool:
         """An unfinished record -> queued with no owner (attempts kept); False if the
         record is missing or finished. With `token`, only if that attempt owns it."""

@@ -139,6 +139,12 @@ class SqlMetadataStore(MetadataStore):
             where, params = "status = 'building' AND claim = ?", (token,)
         return self._update(mesh_id, where, params, status="failed", claim=None, error=reason)
 
+    def lose(self, mesh_id: str, qpm_key: str, reason: str) -> bool:
+        return self._update(
+            mesh_id, "status = 'ready' AND qpm_key = ?", (qpm_key,), status="failed",
+            error=reason,
+        )  # fmt: skip
+
     def release(self, mesh_id: str) -> bool:
         sql = (
             f"UPDATE meshes SET status = 'queued', attempts = {self.GREATEST}(attempts - 1, 0), "

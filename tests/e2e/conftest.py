@@ -14,6 +14,7 @@ import subprocess
 import sys
 import threading
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -119,14 +120,27 @@ class ServerProcess:
                 for path in root.rglob("*")
                 if path.is_file() and path.relative_to(root).parts[0] != ".tmp"
             )
+        with self._s3_store() as store:
+            return sorted(store.keys())
+
+    @contextmanager
+    def _s3_store(self) -> Iterator:
+        """The server's S3 store, opened here with its environment."""
         from server.storage.s3 import S3BlobStore, parse_s3_url
 
         with pytest.MonkeyPatch.context() as patch:
             for name, value in self.env.items():
                 if name.startswith("AWS_"):
                     patch.setenv(name, value)
-            store = S3BlobStore(*parse_s3_url(self.env["QEM_BLOB_URL"]), self.data_dir / "peek")
-            return sorted(store.keys())
+            yield S3BlobStore(*parse_s3_url(self.env["QEM_BLOB_URL"]), self.data_dir / "peek")
+
+    def lose_blob(self, key: str) -> None:
+        """Delete one blob behind the server's back (a store losing data)."""
+        if not self.env.get("QEM_BLOB_URL"):
+            (self.data_dir / "blobs" / key).unlink()
+            return
+        with self._s3_store() as store:
+            assert store.delete(key)
 
     def client(self, token: str | None = None) -> QemClient:
         return QemClient(self.url, token=token)

@@ -138,3 +138,23 @@ def test_delete(server, qem):
     assert caught.value.status == 404 and caught.value.type == "/problems/mesh-not-found"
     assert not any(mesh_id in key for key in server.blob_keys())
     assert mesh_id not in [mesh["id"] for mesh in qem.list()]
+
+
+def test_a_mesh_whose_build_is_lost_from_the_store_fails_alone(server, qem):
+    """The store lost a ready mesh's .qpm (and its stream): that mesh fails with the
+    reason, saying to upload it again; the others are served as before."""
+    lost, kept = (qem.upload(shared_mesh(name)) for name in ("spot.ply", "fandisk.ply"))
+    for mesh_id in (lost, kept):
+        qem.wait_ready(mesh_id, timeout=300)
+    for key in server.blob_keys():
+        if key.startswith(f"meshes/{lost}/"):
+            server.lose_blob(key)
+    with httpx.Client(base_url=server.url, timeout=60) as http:
+        answer = http.get(f"/v1/meshes/{lost}/lod", params={"vertices": 123, "format": "obj"})
+        assert answer.status_code == 409, answer.text
+        assert "missing from the blob store" in answer.json()["reason"]
+        info = http.get(f"/v1/meshes/{lost}").json()
+        assert info["status"] == "failed" and "upload the mesh again" in info["error"]
+        assert http.get(f"/v1/meshes/{lost}/splits").status_code == 409
+        answer = http.get(f"/v1/meshes/{kept}/lod", params={"vertices": 123, "format": "obj"})
+        assert answer.status_code == 200

@@ -41,6 +41,8 @@ class ServerProcess:
     log : everything the server printed so far (stdout and stderr).
     command : another uvicorn program to run instead of ``qem serve`` (the benchmarks'
     yardstick apps); it must print uvicorn's startup line.
+    builds : the server builds with one worker of its own (--workers 1); False with a
+    PostgreSQL queue whose `WorkerProcess` es build.
     """
 
     def __init__(
@@ -49,10 +51,12 @@ class ServerProcess:
         env: dict[str, str] | None = None,
         args: tuple[str, ...] = (),
         command: list[str] | None = None,
+        builds: bool = True,
     ) -> None:
         self.data_dir = data_dir
         self.args = args
         self.command = command
+        self.builds = builds
         self.env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
         self.env.pop("QEM_TOKEN", None)
         self.process: subprocess.Popen[str] | None = None
@@ -76,8 +80,7 @@ class ServerProcess:
             "0",
             "--data-dir",
             str(self.data_dir),
-            "--workers",
-            "1",
+            *(("--workers", "1") if self.builds else ()),
             "--log-level",
             "info",
             *self.args,
@@ -163,6 +166,32 @@ class ServerProcess:
         return status
 
 
+class WorkerProcess:
+    """``qem worker`` in a subprocess (its own process group, so a SIGKILL reaches its
+    build processes too, as when a machine dies)."""
+
+    def __init__(self, env: dict[str, str], slots: int = 1) -> None:
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "client.cli", "worker", "--slots", str(slots)],
+            cwd=REPO, env={**os.environ, "PYTHONUNBUFFERED": "1", **env},
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+        )  # fmt: skip
+
+    def kill(self) -> None:
+        os.killpg(self.process.pid, signal.SIGKILL)
+        self.process.wait(10)
+
+    def stop(self) -> int:
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGTERM)
+        try:
+            return self.process.wait(30)
+        except subprocess.TimeoutExpired:
+            self.kill()
+            return -9
+
+
+
 @pytest.fixture
 def start_server(tmp_path) -> Iterator:
     """start_server(env=None, data_dir=None, args=()) -> a started ServerProcess (`args`
@@ -185,19 +214,23 @@ def start_server(tmp_path) -> Iterator:
 def server(request, tmp_path_factory) -> Iterator[ServerProcess]:
     """One server for the tests of a module (uploads limited to 4 MiB), in each
     deployment: embedded (SQLite, the data directory, builds in the server) and scaled
-    (PostgreSQL, an S3 store and a queue, real servers on loopback; the server builds with
-    its own slot)."""
+    (PostgreSQL, an S3 store and the queue on real servers on loopback, builds by two
+    `qem worker` processes)."""
     env = {"QEM_MAX_UPLOAD_BYTES": str(4 * 2**20)}
-    if request.param == "scaled":
+    scaled = request.param == "scaled"
+    if scaled:
         from server.migrations import upgrade
 
         url = request.getfixturevalue("postgres_server").database()
         upgrade(url)
         env.update({"QEM_DATABASE_URL": url, **request.getfixturevalue("s3_server").env()})
     data_dir = tmp_path_factory.mktemp("qem") / "data"
-    running = ServerProcess(data_dir, env).start()
+    running = ServerProcess(data_dir, env, builds=not scaled).start()
+    workers = [WorkerProcess(env) for _ in range(2)] if scaled else []
     running.deployment = request.param
     yield running
+    for worker in workers:
+        worker.stop()
     running.stop()
 
 

@@ -7,8 +7,6 @@ when it is back; replicas share one database."""
 
 from __future__ import annotations
 
-import os
-import signal
 import subprocess
 import sys
 import time
@@ -18,7 +16,7 @@ import pytest
 
 from server.storage.s3 import S3BlobStore, parse_s3_url
 
-from .conftest import REPO, ServerProcess, shared_mesh
+from .conftest import REPO, ServerProcess, WorkerProcess, shared_mesh
 
 psycopg = pytest.importorskip("psycopg", reason="not installed (pip install -e '.[dev]')")
 
@@ -157,37 +155,9 @@ def test_a_part_down_is_a_503_with_nothing_half_written_then_recovery(
         server.stop()
 
 
-class _Worker:
-    """``qem worker`` in a subprocess (its own process group, so a SIGKILL reaches its
-    build processes too, as when a machine dies)."""
-
-    def __init__(self, env: dict[str, str], slots: int = 1) -> None:
-        self.process = subprocess.Popen(
-            [sys.executable, "-m", "client.cli", "worker", "--slots", str(slots)],
-            cwd=REPO, env={**os.environ, "PYTHONUNBUFFERED": "1", **env},
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
-        )  # fmt: skip
-
-    def kill(self) -> None:
-        os.killpg(self.process.pid, signal.SIGKILL)
-        self.process.wait(10)
-
-    def stop(self) -> int:
-        if self.process.poll() is None:
-            self.process.send_signal(signal.SIGTERM)
-        try:
-            return self.process.wait(30)
-        except subprocess.TimeoutExpired:
-            self.kill()
-            return -9
-
-
 def _serve_only(tmp_path, env: dict[str, str]) -> ServerProcess:
     """``qem serve`` that runs no builds itself (no --workers: the workers do)."""
-    return ServerProcess(tmp_path / "data", env, command=[
-        sys.executable, "-m", "client.cli", "serve", "--port", "0", "--data-dir",
-        str(tmp_path / "data"), "--log-level", "info",
-    ]).start()  # fmt: skip
+    return ServerProcess(tmp_path / "data", env, builds=False).start()
 
 
 def _attempts(url: str) -> dict[str, int]:
@@ -199,7 +169,7 @@ def test_workers_build_every_upload_once(postgres_server, s3_server, tmp_path):
     """20 uploads, two `qem worker` processes: every mesh ready, none built twice."""
     env = {"QEM_DATABASE_URL": _migrated(postgres_server), **s3_server.env()}
     server = _serve_only(tmp_path, env)
-    workers = [_Worker(env), _Worker(env)]
+    workers = [WorkerProcess(env), WorkerProcess(env)]
     try:
         small = [REPO / "server" / "demo" / name for name in ("spot.obj", "spot.glb")]
         with server.client() as qem:
@@ -219,7 +189,7 @@ def test_a_build_whose_worker_is_killed_is_taken_up_by_another(postgres_server, 
     env = {"QEM_DATABASE_URL": _migrated(postgres_server), **s3_server.env(),
            "QEM_WORKER_STALE_S": "3"}  # fmt: skip
     server = _serve_only(tmp_path, env)
-    first = _Worker(env)
+    first = WorkerProcess(env)
     second = None
     try:
         with server.client() as qem:
@@ -230,7 +200,7 @@ def test_a_build_whose_worker_is_killed_is_taken_up_by_another(postgres_server, 
                 time.sleep(0.1)
             first.kill()  # SIGKILL of the worker and its build process mid-build
             killed = time.monotonic()
-            second = _Worker(env)
+            second = WorkerProcess(env)
             info = qem.wait_ready(mesh_id, timeout=300)
             assert info["status"] == "ready", info
         assert _attempts(env["QEM_DATABASE_URL"]) == {mesh_id: 2}

@@ -61,7 +61,7 @@ from .http import (
     QemTimeoutError,
 )
 from .local_commands import add_build, add_info, add_lod, add_simplify
-from .scale_commands import add_db, add_worker, check_database
+from .scale_commands import add_db, add_worker, check_storage
 
 __all__ = ["SUBCOMMANDS", "build_parser", "main"]
 
@@ -187,7 +187,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         )
         raise CliError(f"invalid settings: {problems}", EXIT_USAGE) from None
     configure_logging(args.log_level, settings.log_format)
-    check_database(settings)
+    check_storage(settings)
     if not settings.tokens and not settings.allow_anonymous_writes and not _is_loopback(args.host):
         raise CliError(
             f"--host {args.host} is reachable from other machines, and without write tokens "

@@ -17,7 +17,7 @@ import argparse
 
 from .console import EXIT_OK, EXIT_UNREACHABLE, EXIT_USAGE, CliError, print_json
 
-__all__ = ["add_db", "add_worker", "check_database"]
+__all__ = ["add_db", "add_worker", "check_storage"]
 
 
 def add_db(subparsers: argparse._SubParsersAction) -> None:
@@ -62,7 +62,7 @@ def cmd_worker(args: argparse.Namespace) -> int:
             EXIT_USAGE,
         )
     configure_logging(args.log_level, settings.log_format)
-    check_database(settings)
+    check_storage(settings)
     storage = open_storage(settings)
     try:
         WorkerPool(settings, storage, settings.workers).run_until_signalled()
@@ -108,17 +108,23 @@ def cmd_db_upgrade(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def check_database(settings) -> None:
-    """Before serving: a PostgreSQL database must answer and hold this version's schema;
-    else a CliError saying what to do."""
-    if not settings.database_url:
-        return
+def check_storage(settings) -> None:
+    """Before serving or working: a PostgreSQL database must answer and hold this
+    version's schema, an S3 store must take a write; else a CliError saying what is
+    wrong (not a traceback from the server's start)."""
     from server.storage import StorageUnavailable
-    from server.storage.postgres import SchemaMismatch, check_schema
 
     try:
-        check_schema(settings.database_url)
-    except SchemaMismatch as exc:
-        raise CliError(str(exc), EXIT_USAGE) from None
+        if settings.database_url:
+            from server.storage.postgres import SchemaMismatch, check_schema
+
+            try:
+                check_schema(settings.database_url)
+            except SchemaMismatch as exc:
+                raise CliError(str(exc), EXIT_USAGE) from None
+        if settings.blob_url:
+            from server.storage.s3 import S3BlobStore
+
+            S3BlobStore.from_settings(settings).ping()
     except StorageUnavailable as exc:
         raise CliError(str(exc), EXIT_UNREACHABLE) from None

@@ -46,7 +46,9 @@ class StorageUnavailable(Exception):
     part : "database" or "blob store"."""
 
     def __init__(self, part: str, error: BaseException) -> None:
-        super().__init__(f"the {part} does not answer: {type(error).__name__}: {error}")
+        # The first paragraph: some clients append pages of debugging detail.
+        said = str(error).split("\n\n")[0]
+        super().__init__(f"the {part} does not answer: {type(error).__name__}: {said}")
         self.part = part
 
 

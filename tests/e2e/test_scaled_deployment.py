@@ -50,6 +50,25 @@ def test_serve_refuses_a_database_without_the_schema(postgres_url, tmp_path):
     assert again.returncode == 0 and "nothing to do" in again.stdout
 
 
+@pytest.mark.parametrize(
+    "variables, part",
+    [
+        ({"QEM_DATABASE_URL": "postgresql://qem@127.0.0.1:1/qem"}, "the database"),
+        ({"QEM_BLOB_URL": "s3://qem/x", "AWS_ENDPOINT_URL": "http://127.0.0.1:1",
+          "AWS_ACCESS_KEY_ID": "k", "AWS_SECRET_ACCESS_KEY": "s"}, "the blob store"),
+    ],
+    ids=["database", "blob store"],
+)  # fmt: skip
+def test_serve_and_worker_say_which_part_does_not_answer(variables, part, tmp_path):
+    for command in (("serve", "--port", "0", "--data-dir", str(tmp_path / "d")), ("worker",)):
+        if command == ("worker",) and "QEM_DATABASE_URL" not in variables:
+            continue  # a worker needs a database before anything
+        done = _qem(*command, env=variables)
+        assert done.returncode == 3, done.stderr
+        assert f"{part} does not answer" in done.stderr and "Traceback" not in done.stderr
+        assert len(done.stderr.splitlines()) <= 3, done.stderr
+
+
 @pytest.fixture(params=["local blobs", "s3"])
 def pg_serve(request, postgres_server, tmp_path):
     env = {"QEM_DATABASE_URL": _migrated(postgres_server)}

@@ -19,7 +19,7 @@ class Mesh:
         ``color`` (k=3 or 4, in [0, 1]) and ``uv`` (k=2).
     corner_uvs : optional (m, 3, 2) float32 texture coordinates per face corner, as OBJ
         stores them (one position may carry several UVs along a seam).
-    texture : optional encoded image (PNG or JPEG bytes) the UVs refer to.
+    texture : optional encoded image (PNG, JPEG or WebP bytes) the UVs refer to.
     name : the file name it came from, if any.
     """
 

@@ -278,7 +278,7 @@ class ProgressiveMesh:
     # -- attributes ----------------------------------------------------------------
     @property
     def texture_type(self) -> str | None:
-        """The media type of ``texture`` ("image/png", "image/jpeg", else
+        """The media type of ``texture`` ("image/png", "image/jpeg", "image/webp", else
         "application/octet-stream"); None without a texture."""
         if self.texture is None:
             return None

@@ -20,6 +20,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from .codecs._images import IMAGE_SUFFIXES
 from .levels import encode_level
 from .progressive import ProgressiveMesh
 from .stored_stream import StreamIndex, encode_stored_stream
@@ -34,7 +35,6 @@ __all__ = [
 
 MANIFEST_FORMAT = "qem-lod-export"
 MANIFEST_VERSION = 1
-_TEXTURE_SUFFIXES = {"image/png": ".png", "image/jpeg": ".jpg"}
 
 
 @dataclass(frozen=True)
@@ -78,7 +78,7 @@ def write_export(parts: ExportParts, directory: Path) -> Path:
     contents = {"base": parts.base, "stream": parts.stream, "frames": parts.index.to_json()}
     texture_name = None
     if parts.texture is not None:
-        suffix = _TEXTURE_SUFFIXES.get(parts.texture_type or "", ".bin")
+        suffix = IMAGE_SUFFIXES.get(parts.texture_type or "", ".bin")
         texture_name = "texture" + suffix
         contents["texture"] = parts.texture
         files["texture"] = texture_name

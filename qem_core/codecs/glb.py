@@ -24,7 +24,7 @@ Writer: one mesh, one primitive, one node; POSITION float32 with min/max, indice
 uint16 when there are at most 65535 (glTF) vertices (65535 itself is the reserved
 restart value) else uint32, NORMAL (normalised to unit length, as glTF requires),
 COLOR_0 float32 in [0, 1], TEXCOORD_0 float32; a material that is not metallic, with
-the texture (PNG or JPEG bytes, embedded) as base colour when one is given together
+the texture (PNG, JPEG or WebP bytes, embedded) as base colour when one is given together
 with UVs. With `corner_uvs`, each vertex is written once per distinct UV of its corners
 (sorted by vertex, then UV bits; a vertex no face uses once, with UV (0, 0)), its
 normal and colour copied; the "uv" attribute is used only without `corner_uvs`.
@@ -104,6 +104,7 @@ _QUANTIZED = {
 }
 _GENERATOR = "qem-lod"
 _MESHOPT = "EXT_meshopt_compression"
+_WEBP = "EXT_texture_webp"
 # Primitive extras key: a bufferView of uint32 LE, the Mesh vertex of each glTF vertex.
 _VERTEX_OF = "qem_lod_vertex_of"
 
@@ -129,9 +130,9 @@ def read_gltf(data: bytes, files: Companions | None = None) -> Mesh:
 # looks qem-lod does not keep (materials, lights; other image formats are left out as
 # from any file). Any other required extension would change what the mesh is.
 _READ_EXTENSIONS = {"KHR_draco_mesh_compression", _MESHOPT, "KHR_mesh_quantization",
-                    "KHR_texture_transform"}  # fmt: skip
-_IGNORED_EXTENSION_PREFIXES = ("KHR_materials_", "KHR_lights_", "EXT_texture_webp",
-                               "KHR_texture_basisu", "EXT_lights_")  # fmt: skip
+                    "KHR_texture_transform", _WEBP}  # fmt: skip
+_IGNORED_EXTENSION_PREFIXES = ("KHR_materials_", "KHR_lights_", "KHR_texture_basisu",
+                               "EXT_lights_")  # fmt: skip
 
 
 def _read_document(gltf: dict, binary: bytes | None, files: Companions | None) -> Mesh:
@@ -240,7 +241,12 @@ def write_glb(
                 "wrapT": _REPEAT,
             }
         ]
-        gltf["textures"] = [{"sampler": 0, "source": 0}]
+        if gltf["images"][0]["mimeType"] == "image/webp":
+            # glTF's own sources are PNG and JPEG; a WebP one is the extension's.
+            gltf["textures"] = [{"sampler": 0, "extensions": {_WEBP: {"source": 0}}}]
+            gltf["extensionsUsed"] = gltf["extensionsRequired"] = [_WEBP]
+        else:
+            gltf["textures"] = [{"sampler": 0, "source": 0}]
         material["pbrMetallicRoughness"]["baseColorTexture"] = {"index": 0}
     gltf["accessors"] = blob.accessors
     gltf["bufferViews"] = blob.views
@@ -319,7 +325,9 @@ def _unit(normals: np.ndarray) -> np.ndarray:
 def _image_type(texture: bytes) -> str:
     media_type = image_media_type(texture)
     if media_type is None:
-        raise InvalidMeshError("texture must be PNG or JPEG bytes (glTF embeds no other format)")
+        raise InvalidMeshError(
+            "texture must be PNG, JPEG or WebP bytes (glTF embeds no other format)"
+        )
     return media_type
 
 
@@ -764,7 +772,12 @@ def _base_color_image(
     texture_info = material.get("pbrMetallicRoughness", {}).get("baseColorTexture")
     if texture_info is None:
         return None
-    source = _item(gltf, "textures", texture_info["index"]).get("source")
+    texture = _item(gltf, "textures", texture_info["index"])
+    # A texture's own source is PNG or JPEG (what every reader decodes): taken when there
+    # is one; else the WebP of EXT_texture_webp.
+    source = texture.get("source")
+    if source is None:
+        source = (extension(texture, _WEBP) or {}).get("source")
     if source is None:
         return None
     image = _item(gltf, "images", source)

@@ -39,7 +39,7 @@ import numpy as np
 from ..errors import MeshFormatError
 from ..mesh import Mesh
 from ._corners import per_vertex
-from ._images import image_media_type
+from ._images import IMAGE_SUFFIXES, image_media_type
 from ._polygons import polygon_corners
 from ._text import count_tokens, parse_lines, parse_numbers
 from .archive import write_archive
@@ -48,7 +48,6 @@ from .mtl import Material, read_mtl
 
 __all__ = ["obj_companions", "read_obj", "write_obj", "write_obj_zip"]
 
-_IMAGE_SUFFIXES = {"image/png": ".png", "image/jpeg": ".jpg"}
 
 _LINE = re.compile(rb"^[ \t]*(v|vt|vn|f|usemtl|mtllib)[ \t]+([^\r\n#]*)", re.MULTILINE)
 _SPACE = np.zeros(256, dtype=bool)
@@ -226,8 +225,8 @@ def write_obj_zip(
 def obj_companions(material_library: str, texture: bytes) -> dict[str, bytes]:
     """The files an OBJ written with ``material_library`` names: ``<name>.mtl`` with one
     material whose ``map_Kd`` is the image, and the image, ``<name>_texture.png`` (or
-    .jpg), by file name."""
-    image = f"{material_library}_texture{_IMAGE_SUFFIXES.get(image_media_type(texture), '.png')}"
+    .jpg, .webp), by file name."""
+    image = f"{material_library}_texture{IMAGE_SUFFIXES.get(image_media_type(texture), '.png')}"
     mtl = f"newmtl {material_library}\nKd 1 1 1\nmap_Kd {image}\n"
     return {f"{material_library}.mtl": mtl.encode(), image: bytes(texture)}
 

@@ -110,7 +110,7 @@ def load_mesh(
     coordinates, face indices out of range). Messages name the bad value. Nothing is
     allocated in proportion to counts a header declares before they are checked
     against the file's size. OSError if a path cannot be read. A texture image that is
-    not PNG or JPEG is left out (the UVs stay): see `_servable_texture`.
+    not PNG, JPEG or WebP is left out (the UVs stay): see `_servable_texture`.
     """
     data, source_name = _read_source(source)
     if files is None and isinstance(source, str | os.PathLike):
@@ -154,10 +154,10 @@ def load_mesh(
 
 
 def _servable_texture(texture: bytes | None) -> bytes | None:
-    """The texture if it is PNG or JPEG, else None: those are what glTF embeds and a
-    browser decodes everywhere. Another image (KTX2, WebP through an extension) is left
-    out rather than refusing the mesh, whose UVs stay; keeping it would make every GLB
-    level of the mesh fail to encode."""
+    """The texture if it is PNG, JPEG or WebP, else None: those are what glTF embeds
+    (WebP through EXT_texture_webp) and browsers decode. Another image (KTX2) is left out
+    rather than refusing the mesh, whose UVs stay; keeping it would make every GLB level
+    of the mesh fail to encode."""
     if texture is not None and image_media_type(texture) is None:
         return None
     return texture
@@ -215,7 +215,8 @@ def encode_mesh(
     vertices : (n, 3) float; faces : (m, 3) int in [0, n).
     vertex_attributes : optional "normal" (n, 3), "color" (n, 3 or 4) in [0, 1],
         "uv" (n, 2) with the origin at the bottom-left of the image.
-    texture : optional PNG or JPEG bytes; stored by "glb" (with UVs) and "msgpack".
+    texture : optional PNG, JPEG or WebP bytes; stored by "glb" (with UVs; WebP through
+        EXT_texture_webp) and "msgpack".
     corner_uvs : optional (m, 3, 2) UVs per face corner (origin bottom-left), seams
         included; every format keeps them per corner: OBJ ``vt`` per corner, PLY face
         list ``texcoord``, GLB one vertex per (position, UV) pair, msgpack
@@ -241,7 +242,7 @@ def encode_mesh(
     vertices, faces = validate_mesh_arrays(vertices, faces, require_faces=False)
     attributes = _checked_attributes(vertex_attributes or {}, vertices.shape[0], "mesh")
     if texture is not None and not isinstance(texture, bytes | bytearray):
-        raise InvalidMeshError("texture must be the bytes of a PNG or JPEG image")
+        raise InvalidMeshError("texture must be the bytes of a PNG, JPEG or WebP image")
     if corner_uvs is not None:
         corner_uvs = checked_corner_uvs(corner_uvs, faces.shape[0], "mesh")
     if fmt != "msgpack" or quantize_bits is None:

@@ -363,8 +363,8 @@ def splits_answer(record: MeshRecord, stream, n1: int, n2: int) -> tuple[dict[st
     response_class=Response,
     responses={
         200: {
-            "description": "the image the mesh's UVs refer to, as uploaded (PNG or JPEG)",
-            "content": {"image/png": {}, "image/jpeg": {}},
+            "description": "the image the mesh's UVs refer to, as uploaded (PNG, JPEG or WebP)",
+            "content": {"image/png": {}, "image/jpeg": {}, "image/webp": {}},
         },
         304: {"description": "not modified (If-None-Match)"},
         **problem_responses(404, 409),

@@ -78,6 +78,30 @@ def test_an_obj_with_its_mtl_and_image_in_a_zip_builds_textured(server, http, sp
     assert mesh.n_vertices == 500 and mesh.texture == spot_image
 
 
+def test_an_obj_with_a_webp_image_builds_textured_in_webp(server, http, spot_image, tmp_path):
+    """A WebP map_Kd (issue #33): kept as WebP, served as image/webp, in GLB levels
+    through EXT_texture_webp and in the OBJ zip beside the .mtl."""
+    image = pytest.importorskip("PIL.Image", reason="Pillow is not installed")
+    out = io.BytesIO()
+    image.open(io.BytesIO(spot_image)).save(out, "WEBP", quality=80)
+    webp = out.getvalue()
+    path = tmp_path / "spot-webp.zip"
+    path.write_bytes(_zip({
+        "spot.obj": b"mtllib spot.mtl\nusemtl spot\n" + SPOT.read_bytes(),
+        "spot.mtl": b"newmtl spot\nKd 1 1 1\nmap_Kd spot.webp\n",
+        "spot.webp": webp,
+    }))  # fmt: skip
+    with server.client() as qem:
+        info = qem.wait_ready(qem.upload(path), timeout=300)
+    texture = http.get(f"/v1/meshes/{info['id']}/texture")
+    assert texture.headers["content-type"] == "image/webp" and texture.content == webp
+    level = http.get(f"/v1/meshes/{info['id']}/lod", params={"vertices": 500, "format": "glb"})
+    assert b"EXT_texture_webp" in level.content[:4096]
+    assert qem_core.load_mesh(level.content, format="glb").texture == webp
+    level = http.get(f"/v1/meshes/{info['id']}/lod", params={"vertices": 500, "format": "zip"})
+    assert "mesh_texture.webp" in zipfile.ZipFile(io.BytesIO(level.content)).namelist()
+
+
 def test_the_cli_uploads_a_zip(server, spot_zip, tmp_path):
     (tmp_path / "spot.zip").write_bytes(spot_zip)
     done = subprocess.run(

@@ -30,7 +30,7 @@ from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 
 from ..settings import Settings
-from ..storage import Storage, new_token
+from ..storage import Storage, StorageUnavailable, new_token
 from .base import JobQueue
 from .local import build_in_worker, stop_pool, worker_pool
 
@@ -104,7 +104,12 @@ class WorkerPool:
                     with self._wake:  # woken by an upload's notice, else look again soon
                         self._wake.wait(min(_POLL_S, self.settings.worker_stale_s / 3))
                     continue
-                executor = self._build(executor, record.id, token, record.attempts)
+                try:
+                    executor = self._build(executor, record.id, token, record.attempts)
+                except Exception:  # a slot must outlive any one build
+                    log.exception("build slot: the build of mesh %s ended badly", record.id)
+                    stop_pool(executor)
+                    executor = worker_pool(self.settings, 1)
         finally:
             stop_pool(executor)
 
@@ -126,18 +131,32 @@ class WorkerPool:
                     break
                 continue
             except BrokenProcessPool:
-                self._died(mesh_id, token, attempts)
+                self._record(self._died, mesh_id, token, attempts)
+                break
+            except StorageUnavailable as error:
+                # The build could not record its outcome: the record stays building, its
+                # heartbeat stops, and it is taken back once the database answers.
+                log.warning("build of mesh %s could not reach the storage: %s", mesh_id, error)
                 break
             except Exception as error:  # noqa: BLE001 - the child could not run it
                 log.error("build of mesh %s could not run: %r", mesh_id, error)
                 reason = f"internal error: the build could not run ({type(error).__name__})"
-                self.metadata.fail(mesh_id, reason, token=token)
+                self._record(self.metadata.fail, mesh_id, reason, token=token)
                 break
             if self.on_finished is not None:
                 self.on_finished(outcome, seconds)
             return executor
         stop_pool(executor)
         return worker_pool(self.settings, 1)
+
+    @staticmethod
+    def _record(write, *args, **kwargs) -> None:
+        """A write of a build's outcome by the slot; the database away, the heartbeat's
+        end says the rest (the build is taken back)."""
+        try:
+            write(*args, **kwargs)
+        except StorageUnavailable as error:
+            log.warning("could not record a build's outcome: %s", error)
 
     def _beat(self, mesh_id: str, token: str) -> bool:
         """Beat the heartbeat; False if the attempt lost its claim."""

@@ -229,3 +229,40 @@ def test_a_build_whose_worker_is_killed_is_taken_up_by_another(postgres_server, 
             second.stop()
         first.stop()
         server.stop()
+
+
+def test_the_database_stopped_mid_build_delays_the_build_but_loses_nothing(
+    postgres_server, s3_server, tmp_path
+):
+    """PostgreSQL stopped for a few seconds while a worker builds dragon: the build cannot
+    record its progress, its slot survives, and once the database is back the build is
+    taken back and finished; the server answers 503 meanwhile and nothing is lost."""
+    dragon = shared_mesh("dragon.ply")
+    env = {"QEM_DATABASE_URL": _migrated(postgres_server), **s3_server.env(),
+           "QEM_WORKER_STALE_S": "3"}  # fmt: skip
+    server = _serve_only(tmp_path, env)
+    worker = WorkerProcess(env)
+    try:
+        with server.client() as qem:
+            spot = qem.upload(SPOT)
+            qem.wait_ready(spot, timeout=300)
+            mesh_id = qem.upload(dragon)
+            deadline = time.monotonic() + 120
+            while qem.info(mesh_id)["progress"] < 0.05:
+                assert time.monotonic() < deadline, qem.info(mesh_id)
+                time.sleep(0.1)
+            postgres_server.pause()
+            try:
+                with httpx.Client(base_url=server.url, timeout=60) as http:
+                    assert http.get(f"/v1/meshes/{mesh_id}").status_code == 503
+                time.sleep(3)
+            finally:
+                postgres_server.resume()
+            info = qem.wait_ready(mesh_id, timeout=300)
+            assert info["status"] == "ready", info
+            assert qem.info(spot)["status"] == "ready"
+        assert _attempts(env["QEM_DATABASE_URL"])[mesh_id] <= 2
+        assert worker.process.poll() is None  # the worker and its slot lived through it
+    finally:
+        worker.stop()
+        server.stop()

@@ -49,7 +49,7 @@ def test_tokens_are_not_shown(tmp_path):
         ("data_dir", "/", "filesystem root"),
         ("metadata_backend", "postgres", "is not one of ['postgresql', 'sqlite']"),
         ("blob_backend", "gcs", "is not one of ['local', 's3']"),
-        ("jobs_backend", "redis", "is not one of ['local']"),
+        ("jobs_backend", "redis", "is not one of ['local', 'postgresql']"),
         ("database_url", "mysql://db/qem", "QEM_DATABASE_URL must be postgresql://"),
         ("blob_url", "https://bucket.example/x", "a blob URL is s3://bucket/prefix"),
         ("blob_url", "s3:///prefix", "a blob URL is s3://bucket/prefix"),

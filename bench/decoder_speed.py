@@ -32,8 +32,8 @@ from pathlib import Path
 from typing import Any
 
 from .meshes import compact_referenced
-from .report import format_ms, format_ratio, markdown_table, write_json
-from .runs import bench_parser, load_average, now, progress, run_header_lines, source_revision
+from .report import format_ms, format_ratio, markdown_table
+from .runs import bench_parser, progress, record_run, run_header_lines
 
 __all__ = ["main", "measure_decoder_speed"]
 
@@ -209,19 +209,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--meshes", nargs="+", default=list(DEFAULT_MESHES))
     parser.add_argument("--runs", type=int, default=5)
     args = parser.parse_args(argv)
-    record: dict[str, Any] = {
-        "measured_at": now(),
-        "source": source_revision(),
-        "command": "python -m bench.decoder_speed " + " ".join(sys.argv[1:]),
-        "runs": args.runs,
-        "load_average": {"start": load_average()},
-    }
-    record.update(measure_decoder_speed(args.mesh_dir, args.meshes, args.runs))
-    record["load_average"]["end"] = load_average()
-    args.out_dir.mkdir(parents=True, exist_ok=True)
-    write_report(args.out_dir / "decoder-speed.md", record)
-    write_json(args.out_dir / "decoder-speed.json", record)
-    progress(f"wrote {args.out_dir / 'decoder-speed.md'}")
+    record_run("bench.decoder_speed", args, "decoder-speed",
+               lambda: measure_decoder_speed(args.mesh_dir, args.meshes, args.runs),
+               write_report, runs=args.runs)  # fmt: skip
     return 0
 
 

@@ -23,8 +23,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from .report import format_ms, format_ratio, markdown_table, write_json
-from .runs import bench_parser, load_average, now, progress, run_header_lines, source_revision
+from .report import format_ms, format_ratio, markdown_table
+from .runs import bench_parser, progress, record_run, run_header_lines
 
 __all__ = ["main", "measure_read_speed"]
 
@@ -112,19 +112,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = bench_parser("python -m bench.read_speed", __doc__)
     parser.add_argument("--runs", type=int, default=7)
     args = parser.parse_args(argv)
-    record: dict[str, Any] = {
-        "measured_at": now(),
-        "source": source_revision(),
-        "command": "python -m bench.read_speed " + " ".join(sys.argv[1:]),
-        "runs": args.runs,
-        "load_average": {"start": load_average()},
-    }
-    record.update(measure_read_speed(args.mesh_dir, args.runs))
-    record["load_average"]["end"] = load_average()
-    args.out_dir.mkdir(parents=True, exist_ok=True)
-    write_report(args.out_dir / "read-speed.md", record)
-    write_json(args.out_dir / "read-speed.json", record)
-    progress(f"wrote {args.out_dir / 'read-speed.md'}")
+    record_run("bench.read_speed", args, "read-speed",
+               lambda: measure_read_speed(args.mesh_dir, args.runs), write_report,
+               runs=args.runs)  # fmt: skip
     return 0
 
 

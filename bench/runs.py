@@ -9,6 +9,8 @@
 - `bench_parser`, `merge_results`: the command-line options every one of them takes,
   and merging a run's entries into its JSON file under bench/results/.
 - `now`, `progress`: the timestamp written into results, a progress line on stderr.
+- `record_run`: one run's record (when, code, command, load average around it) written
+  as its Markdown report and JSON file.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ __all__ = [
     "measure_or_fail",
     "now",
     "progress",
+    "record_run",
     "run_header_lines",
     "source_revision",
 ]
@@ -153,6 +156,34 @@ def source_revision() -> str:
         return "unknown"
     paths = [line[3:] for line in changed.splitlines() if line.endswith(".py")]
     return f"{commit} (uncommitted: {', '.join(paths)})" if paths else commit
+
+
+def record_run(
+    module: str,
+    args: argparse.Namespace,
+    name: str,
+    measure: Callable[[], dict[str, Any]],
+    write_report: Callable[[Path, dict[str, Any]], None],
+    **extra: Any,
+) -> dict[str, Any]:
+    """Run ``measure()`` and record it: when, on which code, the command (``python -m
+    module`` and this process's arguments), `extra` items, the load average before and
+    after, and what it returned; written as ``<out_dir>/<name>.md`` (by `write_report`)
+    and ``.json``. Returns the record."""
+    record: dict[str, Any] = {
+        "measured_at": now(),
+        "source": source_revision(),
+        "command": f"python -m {module} " + " ".join(sys.argv[1:]),
+        **extra,
+        "load_average": {"start": load_average()},
+    }
+    record.update(measure())
+    record["load_average"]["end"] = load_average()
+    args.out_dir.mkdir(parents=True, exist_ok=True)
+    write_report(args.out_dir / f"{name}.md", record)
+    write_json(args.out_dir / f"{name}.json", record)
+    progress(f"wrote {args.out_dir / f'{name}.md'}")
+    return record
 
 
 def bench_parser(prog: str, description: str | None) -> argparse.ArgumentParser:

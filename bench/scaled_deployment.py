@@ -24,10 +24,7 @@ Writes bench/results/scaled-deployment.md and .json.
 
 from __future__ import annotations
 
-import os
-import signal
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -37,8 +34,8 @@ from typing import Any
 
 import httpx
 
-from .report import format_ratio, write_json
-from .runs import bench_parser, load_average, now, progress, run_header_lines, source_revision
+from .report import format_ratio
+from .runs import bench_parser, progress, record_run, run_header_lines
 from .service import POLL_INTERVAL_S, READY_TIMEOUT_S, _run_wrk
 
 __all__ = ["main"]
@@ -48,34 +45,18 @@ TARGET_READY_FACTOR = 1.3
 STALE_S = 5.0
 
 
-def _worker(env: dict[str, str]) -> subprocess.Popen:
-    return subprocess.Popen(
-        [sys.executable, "-m", "client.cli", "worker", "--slots", "1"],
-        cwd=REPO, env={**os.environ, **env}, stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL, start_new_session=True,
-    )  # fmt: skip
-
-
-def _stop(process: subprocess.Popen) -> None:
-    if process.poll() is None:
-        process.send_signal(signal.SIGTERM)
-        try:
-            process.wait(30)
-        except subprocess.TimeoutExpired:
-            os.killpg(process.pid, signal.SIGKILL)
-            process.wait(10)
-
-
-def _serve(data_dir: Path, env: dict[str, str], workers: bool):
+def _serve(data_dir: Path, env: dict[str, str], builds: bool):
+    """``qem serve``, building with one worker of its own or leaving builds to the
+    `WorkerProcess` es (the tests' helpers)."""
     from tests.e2e.conftest import ServerProcess
 
-    command = [sys.executable, "-m", "client.cli", "serve", "--port", "0", "--data-dir",
-               str(data_dir), "--log-level", "info"]  # fmt: skip
-    if workers:
-        command += ["--workers", "1"]
-    server = ServerProcess(data_dir, env, command=command)
-    server.start()
-    return server
+    return ServerProcess(data_dir, env, builds=builds).start()
+
+
+def _worker(env: dict[str, str]):
+    from tests.e2e.conftest import WorkerProcess
+
+    return WorkerProcess(env)
 
 
 def _ready_seconds(server, mesh: Path, warm_up: Path) -> float:
@@ -100,18 +81,18 @@ def measure(args, postgres, s3, work: Path) -> dict[str, Any]:
     warm_up = REPO / "server" / "demo" / "spot.obj"
     times: dict[str, list[float]] = {"embedded": [], "scaled": []}
     for run in range(args.runs):
-        server = _serve(work / f"embedded-{run}", {}, workers=True)
+        server = _serve(work / f"embedded-{run}", {}, builds=True)
         try:
             times["embedded"].append(_ready_seconds(server, mesh, warm_up))
         finally:
             server.stop()
         env = _scaled_env(postgres, s3)
-        server = _serve(work / f"scaled-{run}", env, workers=False)
+        server = _serve(work / f"scaled-{run}", env, builds=False)
         worker = _worker(env)
         try:
             times["scaled"].append(_ready_seconds(server, mesh, warm_up))
         finally:
-            _stop(worker)
+            worker.stop()
             server.stop()
         progress(f"run {run + 1}: embedded {times['embedded'][-1]:.2f} s, "
                  f"scaled {times['scaled'][-1]:.2f} s")  # fmt: skip
@@ -119,7 +100,7 @@ def measure(args, postgres, s3, work: Path) -> dict[str, Any]:
 
     # Cached level through one replica and through two.
     env = _scaled_env(postgres, s3)
-    replicas = [_serve(work / f"replica-{i}", env, workers=False) for i in range(2)]
+    replicas = [_serve(work / f"replica-{i}", env, builds=False) for i in range(2)]
     worker = _worker(env)
     try:
         with replicas[0].client() as qem:
@@ -138,13 +119,13 @@ def measure(args, postgres, s3, work: Path) -> dict[str, Any]:
         progress(f"cached level: one replica {serving['one_replica_per_s']:.0f}/s, two "
                  f"{serving['two_replicas_per_s']:.0f}/s")  # fmt: skip
     finally:
-        _stop(worker)
+        worker.stop()
         for replica in replicas:
             replica.stop()
 
     # A killed build taken up by another worker.
     env = _scaled_env(postgres, s3)
-    server = _serve(work / "takeover", env, workers=False)
+    server = _serve(work / "takeover", env, builds=False)
     first = _worker(env)
     second = None
     try:
@@ -155,18 +136,19 @@ def measure(args, postgres, s3, work: Path) -> dict[str, Any]:
                 time.sleep(0.05)
             second = _worker(env)
             time.sleep(2.0)  # the second worker up and idle
-            os.killpg(first.pid, signal.SIGKILL)
-            first.wait(10)
+            first.kill()
             killed = time.perf_counter()
+            if qem.info(mesh_id)["status"] != "building":
+                raise SystemExit(f"{args.mesh} was built before its worker could be killed: "
+                                 "take a mesh whose build lasts several seconds (dragon)")
             import psycopg
 
             with psycopg.connect(env["QEM_DATABASE_URL"], autocommit=True) as connection:
-                while True:
-                    row = connection.execute(
-                        "SELECT status, attempts FROM meshes WHERE id = %s", (mesh_id,)
-                    ).fetchone()
-                    if row == ("building", 2):
-                        break
+                while connection.execute(
+                    "SELECT status, attempts FROM meshes WHERE id = %s", (mesh_id,)
+                ).fetchone() != ("building", 2):
+                    if time.perf_counter() - killed > READY_TIMEOUT_S:
+                        raise SystemExit("the killed build was never taken up")
                     time.sleep(0.02)
             claimed = time.perf_counter() - killed
             qem.wait_ready(mesh_id, interval=POLL_INTERVAL_S, timeout=READY_TIMEOUT_S)
@@ -174,9 +156,9 @@ def measure(args, postgres, s3, work: Path) -> dict[str, Any]:
                         "ready_after_kill_s": time.perf_counter() - killed}  # fmt: skip
         progress(f"takeover: claimed again {claimed:.2f} s after the kill")
     finally:
-        for process in (first, second):
-            if process is not None:
-                _stop(process)
+        for worker in (first, second):
+            if worker is not None:
+                worker.stop()
         server.stop()
     return {"mesh": args.mesh, "ready_s": times, "ready_median_s": ready,
             "ready_ratio": ready["scaled"] / ready["embedded"], "serving": serving,
@@ -222,25 +204,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--duration", type=int, default=10)
     args = parser.parse_args(argv)
-    record: dict[str, Any] = {
-        "measured_at": now(),
-        "source": source_revision(),
-        "command": "python -m bench.scaled_deployment " + " ".join(sys.argv[1:]),
-        "load_average": {"start": load_average()},
-    }
-    postgres = PostgresServer().start()
-    s3 = S3Server().start()
-    try:
-        with tempfile.TemporaryDirectory(prefix="qem-bench-scaled-") as work:
-            record.update(measure(args, postgres, s3, Path(work)))
-    finally:
-        s3.stop()
-        postgres.stop()
-    record["load_average"]["end"] = load_average()
-    args.out_dir.mkdir(parents=True, exist_ok=True)
-    write_report(args.out_dir / "scaled-deployment.md", record)
-    write_json(args.out_dir / "scaled-deployment.json", record)
-    progress(f"wrote {args.out_dir / 'scaled-deployment.md'}")
+
+    def measured() -> dict[str, Any]:
+        postgres = PostgresServer().start()
+        s3 = S3Server().start()
+        try:
+            with tempfile.TemporaryDirectory(prefix="qem-bench-scaled-") as work:
+                return measure(args, postgres, s3, Path(work))
+        finally:
+            s3.stop()
+            postgres.stop()
+
+    record_run("bench.scaled_deployment", args, "scaled-deployment", measured, write_report)
     return 0
 
 

@@ -260,7 +260,6 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("no Chromium found (apt-get install -y chromium, or set QEM_CHROMIUM)")
     with tempfile.TemporaryDirectory(prefix="qem-viewer-load-") as scratch:
         server = ServerProcess(Path(scratch) / "data").start()
-        site = draco_site(args.mesh, Path(scratch) / "draco")
         try:
             with server.client() as qem:
                 mesh_id = qem.upload(args.mesh)
@@ -269,15 +268,15 @@ def main(argv: list[str] | None = None) -> int:
             alone = [server_alone(url, info["min_vertices"], info["vertices"])]
             runs = []
             draco: dict = {"runs": []}
-            glb_url, draco["bytes"] = site.__enter__()
-            for i in range(args.runs):
-                runs.append(one_run(f"{server.url}/#mesh={mesh_id}", Path(scratch) / f"p{i}"))
-                print(f"run {i + 1}: {runs[-1]}", flush=True)
-                draco["runs"].append(draco_run(glb_url, Path(scratch) / f"d{i}"))
-                print(f"Draco GLB {i + 1}: {draco['runs'][-1]}", flush=True)
-                alone.append(server_alone(url, info["min_vertices"], info["vertices"]))
+            with draco_site(args.mesh, Path(scratch) / "draco") as (glb_url, draco["bytes"]):
+                for i in range(args.runs):
+                    page = f"{server.url}/#mesh={mesh_id}"
+                    runs.append(one_run(page, Path(scratch) / f"p{i}"))
+                    print(f"run {i + 1}: {runs[-1]}", flush=True)
+                    draco["runs"].append(draco_run(glb_url, Path(scratch) / f"d{i}"))
+                    print(f"Draco GLB {i + 1}: {draco['runs'][-1]}", flush=True)
+                    alone.append(server_alone(url, info["min_vertices"], info["vertices"]))
         finally:
-            site.__exit__(None, None, None)
             server.stop()
     write_report(args.out, args.mesh, info, runs, alone, draco)
     print(args.out.read_text())

@@ -14,6 +14,7 @@ embedded deployment (SQLite, builds inside ``qem serve``) needs neither.
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 from .console import EXIT_OK, EXIT_UNREACHABLE, EXIT_USAGE, CliError, print_json
 
@@ -44,23 +45,15 @@ def add_worker(subparsers: argparse._SubParsersAction) -> None:
 
 
 def cmd_worker(args: argparse.Namespace) -> int:
-    from pydantic import ValidationError
-
     from server.jobs.postgres import WorkerPool
     from server.request_log import configure_logging
-    from server.settings import Settings
     from server.storage import open_storage
 
-    try:
-        settings = Settings(**({"workers": args.slots} if args.slots is not None else {}))
-    except ValidationError as exc:
-        raise CliError("; ".join(error["msg"] for error in exc.errors()), EXIT_USAGE) from None
-    if not settings.database_url:
-        raise CliError(
-            "qem worker takes builds from the PostgreSQL queue: set QEM_DATABASE_URL (the "
-            "embedded deployment builds inside qem serve)",
-            EXIT_USAGE,
-        )
+    settings = _database_settings(
+        {"workers": args.slots} if args.slots is not None else {},
+        "qem worker takes builds from the PostgreSQL queue: set QEM_DATABASE_URL (the "
+        "embedded deployment builds inside qem serve)",
+    )
     configure_logging(args.log_level, settings.log_format)
     check_storage(settings)
     storage = open_storage(settings)
@@ -71,22 +64,20 @@ def cmd_worker(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _database_url(given: str | None) -> str:
+def _database_settings(overrides: dict[str, Any], without: str):
+    """The settings from the environment with `overrides`, which must name a database;
+    else a CliError (`without`: why one is needed)."""
     from pydantic import ValidationError
 
     from server.settings import Settings
 
     try:
-        settings = Settings(database_url=given) if given else Settings()
+        settings = Settings(**overrides)
     except ValidationError as exc:
         raise CliError("; ".join(error["msg"] for error in exc.errors()), EXIT_USAGE) from None
     if not settings.database_url:
-        raise CliError(
-            "QEM_DATABASE_URL is not set (nor --database-url): the embedded SQLite store "
-            "makes its own schema",
-            EXIT_USAGE,
-        )
-    return settings.database_url
+        raise CliError(without, EXIT_USAGE)
+    return settings
 
 
 def cmd_db_upgrade(args: argparse.Namespace) -> int:
@@ -94,7 +85,11 @@ def cmd_db_upgrade(args: argparse.Namespace) -> int:
 
     from server.migrations import upgrade
 
-    url = _database_url(args.database_url)
+    url = _database_settings(
+        {"database_url": args.database_url} if args.database_url else {},
+        "QEM_DATABASE_URL is not set (nor --database-url): the embedded SQLite store makes "
+        "its own schema",
+    ).database_url
     try:
         before, after = upgrade(url)
     except (psycopg.OperationalError, OSError) as exc:

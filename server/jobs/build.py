@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
+from typing import Any
 
 import qem_core
 from qem_core import codecs
@@ -78,16 +79,9 @@ class _ProgressWriter:
         self(_READ_SHARE + _BUILD_SHARE + _STREAM_SHARE * min(1.0, max(0.0, float(fraction))))
 
 
-def run_build(
-    storage: Storage,
-    mesh_id: str,
-    *,
-    progress_interval: float = 0.5,
-    should_abort: Callable[[], bool] | None = None,
-    max_seconds: float | None = None,
-    store_stream: bool = True,
-) -> str:
-    """Build the queued mesh `mesh_id` and record the outcome.
+def run_build(storage: Storage, mesh_id: str, **options: Any) -> str:
+    """Build the queued mesh `mesh_id` and record the outcome (`options`: those of
+    `build_claimed`).
 
     Returns the status it left: ``ready``, ``failed``, or ``skipped`` when the record was
     not queued (already claimed, finished or deleted) or the attempt was aborted. Bad
@@ -100,15 +94,7 @@ def run_build(
     record = storage.metadata.claim(mesh_id, token)
     if record is None:
         return "skipped"
-    return build_claimed(
-        storage,
-        record,
-        token,
-        progress_interval=progress_interval,
-        should_abort=should_abort,
-        max_seconds=max_seconds,
-        store_stream=store_stream,
-    )
+    return build_claimed(storage, record, token, **options)
 
 
 def build_claimed(

@@ -4,7 +4,7 @@ A PLY record with a list property has no fixed size (a face element mixing trian
 and quads), so where record i starts depends on every count before it: a sequential
 walk. These kernels do that walk once, in compiled code, and return where each property
 of each record starts and how many items each list holds; the caller then gathers the
-values with vectorised numpy. Kernels neither validate nor raise: they return a status.
+values (`gather_items`). Kernels neither validate nor raise: they return a status.
 
 Elements whose lists all have the same length (the usual triangle-only face element)
 never come here: the PLY reader maps them with one structured numpy dtype.
@@ -96,5 +96,20 @@ def _walk_tokens(tokens, start, n_records, is_list, property_starts, list_counts
     return position
 
 
+def _gather_items(data, starts, counts, item_size, out):
+    """Copy the items of each record, ``counts[r]`` items of `item_size` bytes from byte
+    ``starts[r]`` of `data` (uint8), one record after another into `out` (uint8, the
+    sum of the counts times `item_size` bytes). The starts and counts are a walk's, so
+    every record's items lie within `data`."""
+    at = 0
+    for record in range(starts.size):
+        begin = starts[record]
+        n_bytes = counts[record] * item_size
+        for k in range(n_bytes):
+            out[at + k] = data[begin + k]
+        at += n_bytes
+
+
 walk_binary = numba.njit(cache=True)(_walk_binary)
+gather_items = numba.njit(cache=True)(_gather_items)
 walk_tokens = numba.njit(cache=True)(_walk_tokens)

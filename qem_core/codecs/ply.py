@@ -37,7 +37,6 @@ from ..errors import MeshFormatError
 from ..mesh import Mesh
 from . import _ply_records
 from ._corners import per_vertex
-from ._floats import widened
 from ._polygons import polygon_corners, triangulate_polygons
 from ._text import parse_numbers
 
@@ -94,7 +93,10 @@ class _Header:
 
 
 # Values read from one element: a scalar property -> (count,) array; a list property ->
-# (item counts (count,) int64, all items one after another (sum of counts,)).
+# (item counts (count,) int64, its items). The items are all one after another
+# (sum of counts,), or (count, k) when every list has k items: then they are a view into
+# the file's bytes (binary) or tokens (ASCII), not a copy, and the counts a broadcast
+# scalar.
 _Values = dict[str, "np.ndarray | tuple[np.ndarray, np.ndarray]"]
 
 
@@ -414,26 +416,29 @@ def _values_from_records(
             if not np.all(counts == length):
                 return None
             if prop.name in wanted:
-                items = records[f"p{column}"].reshape(-1)
-                values[prop.name] = (np.full(len(records), length, dtype=np.int64), items)
+                values[prop.name] = (_same_counts(len(records), length), records[f"p{column}"])
         elif prop.name in wanted:
             values[prop.name] = records[f"p{column}"]
     return values
 
 
+def _same_counts(n_records: int, length: int) -> np.ndarray:
+    """(n_records,) int64 list lengths, all `length`: a read-only broadcast scalar (no
+    8 bytes a record)."""
+    return np.broadcast_to(np.int64(length), (n_records,))
+
+
 def _gather_bytes(
     data: np.ndarray, starts: np.ndarray, counts: np.ndarray | int, dtype: np.dtype
 ) -> np.ndarray:
-    """Items of `dtype` stored at byte `starts` (counts items each), as one flat array."""
-    size = dtype.itemsize
-    counts = np.broadcast_to(np.asarray(counts, dtype=np.int64), starts.shape)
-    first_item = np.cumsum(counts) - counts
-    item_record = np.repeat(np.arange(starts.size), counts)
-    item_starts = (
-        starts[item_record] + (np.arange(item_record.size) - first_item[item_record]) * size
-    )
-    item_bytes = data[item_starts[:, None] + np.arange(size)]
-    return item_bytes.view(dtype).reshape(-1)
+    """Items of `dtype` stored at byte `starts` (counts items each, as the record walk
+    found them within `data`), as one flat array. Copied in compiled code: no index
+    array per item or per byte."""
+    starts = np.ascontiguousarray(starts, dtype=np.int64)
+    counts = np.ascontiguousarray(np.broadcast_to(counts, starts.shape), dtype=np.int64)
+    out = np.empty(int(counts.sum()) * dtype.itemsize, dtype=np.uint8)
+    _ply_records.gather_items(data, starts, counts, dtype.itemsize, out)
+    return out.view(dtype)
 
 
 def _read_ascii_element(
@@ -473,8 +478,8 @@ def _read_ascii_element(
                 if prop.count_dtype is None:
                     values[prop.name] = table[:, column]
                 else:
-                    items = table[:, column + 1 : column + width].reshape(-1)
-                    values[prop.name] = (np.full(element.count, width - 1, dtype=np.int64), items)
+                    items = table[:, column + 1 : column + width]
+                    values[prop.name] = (_same_counts(element.count, width - 1), items)
             return values, end
     starts = np.zeros((element.count, len(props)), dtype=np.int64)
     counts = np.zeros((element.count, len(props)), dtype=np.int64)
@@ -547,7 +552,11 @@ def _build_mesh(
             raise MeshFormatError(f"PLY vertex property {name!r} must be a scalar, not a list")
         return value
 
-    vertices = np.stack([widened(column(a)) for a in "xyz"], axis=1)
+    # Filled column by column: no float64 copy of each column before the stack.
+    vertices = np.empty((vertex.count, 3), dtype=np.float64)
+    with np.errstate(invalid="ignore"):  # a signalling NaN: see _floats.widened
+        for axis, name in enumerate("xyz"):
+            vertices[:, axis] = column(name)
     attributes = {}
     if "nx" in vertex_values:
         attributes["normal"] = np.stack([column(n) for n in ("nx", "ny", "nz")], axis=1)
@@ -613,12 +622,20 @@ def _colors(channels: list[np.ndarray], declared: list[np.dtype]) -> np.ndarray:
 
 
 def _as_indices(items: np.ndarray) -> np.ndarray:
-    """Face indices as int64; ASCII values (float64) must be integers."""
+    """Face indices, flat and contiguous, in one copy from `items` of any layout (a
+    strided (m, k) view of the file's records): int32, the type of `Mesh.faces`, when
+    every value fits, which is what validation wants (no int64 copy of a scan's
+    indices). Float values (ASCII, or a float list type) must be integers in int32's
+    range. uint32 values of 2^31 or more are kept exactly, as int64, for validation to
+    refuse naming them (no vertex count reaches them)."""
     if items.dtype.kind == "f":
         bad = ~(np.abs(items) < 2.0**31) | (items != np.floor(items))
         if bad.any():
-            value = items[np.flatnonzero(bad)[0]]
+            value = items.flat[np.flatnonzero(bad)[0]]
             raise MeshFormatError(
                 f"PLY face index {float(value):g} is not an integer vertex index in int32 range"
             )
-    return items.astype(np.int64)
+    elif items.dtype.kind == "u" and items.dtype.itemsize >= 4 and items.size:
+        if items.max() > np.iinfo(np.int32).max:
+            return items.astype(np.int64).reshape(-1)
+    return np.ascontiguousarray(items, dtype=np.int32).reshape(-1)

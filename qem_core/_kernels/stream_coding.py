@@ -274,13 +274,11 @@ def _fan_keys(faces, s, cs, nc, forward, keys):
 def _fan_next(keys, nc, used, y):
     """The first corner q (in cs order) not ``used`` whose side (``_fan_keys``) is y, or
     -1."""
-    lo, hi = 0, nc
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if keys[mid] < y * nc:
-            lo = mid + 1
-        else:
-            hi = mid
+    # The first key of side y: counted, not bisected (a few keys; a bisection's
+    # branches are guesses the processor gets wrong half the time).
+    lo = 0
+    for q in range(nc):
+        lo += keys[q] < y * nc
     while lo < nc and keys[lo] < (y + 1) * nc:
         q = keys[lo] - y * nc
         if not used[q]:
@@ -401,26 +399,30 @@ def _scratch(head, nxt, s, cs, nb, mark, ys, keys):
 @_kernel
 def _ring_sum(faces, head, nxt, v, other, quantised, total, nb):
     """Sum of the positions of v's distinct neighbours other than ``other`` into total;
-    returns their number (``nb`` is scratch with room for twice v's corners)."""
+    returns their number (``nb`` is scratch with room for twice v's corners).
+
+    The neighbours are made distinct by comparing each with those kept so far, without
+    a branch on the outcome (a ring has a dozen entries, each but the first repeated
+    once on a manifold: a sort's or a test's branches would be guessed wrong half the
+    time); the sum of integers does not depend on the order."""
     m = 0
     c = head[v]
     while c != -1:
         f = c // 3
         for j in range(3):
             w = faces[f, j]
-            if w != v and w != other:
+            if w != v:  # at most two a corner: nb has room
+                seen = w == other
+                for q in range(m):
+                    seen |= nb[q] == w
                 nb[m] = w
-                m += 1
+                m += not seen
         c = nxt[c]
-    _sort_prefix(nb, m)
     total[:] = 0
-    count = 0
     for q in range(m):
-        if q == 0 or nb[q] != nb[q - 1]:
-            count += 1
-            for d in range(3):
-                total[d] += quantised[nb[q], d]
-    return count
+        for d in range(3):
+            total[d] += quantised[nb[q], d]
+    return m
 
 
 @_kernel

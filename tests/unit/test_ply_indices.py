@@ -55,9 +55,10 @@ def _binary_ply(polygons, index_type: str, fmt: str, vertices=_VERTICES) -> byte
 def _ascii_ply(polygons, vertices=_VERTICES) -> bytes:
     lines = [" ".join(f"{x:.9g}" for x in vertex) for vertex in vertices]
     lines += [" ".join(str(i) for i in [len(p), *p]) for p in polygons]
-    return _header("ascii", len(vertices), len(polygons), "uchar", "int") + (
-        "\n".join(lines) + "\n"
-    ).encode()
+    return (
+        _header("ascii", len(vertices), len(polygons), "uchar", "int")
+        + ("\n".join(lines) + "\n").encode()
+    )
 
 
 def _quads_and_triangles():

@@ -226,13 +226,19 @@ def _gather(faces, head, nxt, s, cs, nb):
 
 @numba.njit(cache=True, nogil=True)
 def _distinct_sorted(values, n):
-    """Sort values[:n] in place and drop repeats; returns the new length."""
-    _sort_prefix(values, n)
+    """Sort values[:n] in place and drop repeats; returns the new length.
+
+    The repeats go first (each value compared with those kept, without a branch on the
+    outcome, as in ``_ring_sum``), so that the sort has half the values of a ring."""
     m = 0
     for q in range(n):
-        if m == 0 or values[q] != values[m - 1]:
-            values[m] = values[q]
-            m += 1
+        value = values[q]
+        seen = False
+        for r in range(m):
+            seen |= values[r] == value
+        values[m] = value  # m <= q: values[q] is read before
+        m += not seen
+    _sort_prefix(values, m)
     return m
 
 
@@ -894,18 +900,31 @@ def encode_connectivity(
         masks = _grow(masks, n_mask + nc)
         for q in range(nc):
             masks[n_mask + q] = 2 * mark[q]
+        moved = False
         for r in range(relabel_offsets[i], relabel_offsets[i + 1]):
             f = relabel_faces[r]
             hit = -1
             for j in range(3):
                 if faces[f, j] == s:
                     hit = 3 * f + j
+                    faces[f, j] = t  # as _relabel, its corner moved to t's list below
                     break
-            if hit < 0:
+            q = 0  # hit's place in cs, counted (cs holds every corner of s)
+            for q2 in range(nc):
+                q += cs[q2] < hit
+            if hit < 0 or q >= nc or cs[q] != hit:
                 return codes, thirds, steps, walks, backs, masks, NO_CORNER
-            q = _find(cs, nc, hit)
             masks[n_mask + q] |= 1
-            _relabel(faces, head, nxt, f, s, t)
+            moved = True
+        if moved:
+            # The lists of s and t rebuilt from cs at once, rather than each relabelled
+            # corner unlinked by a walk of s's list (the order of a list does not matter).
+            head[s] = -1
+            for q in range(nc):
+                c = cs[q]
+                v = t if masks[n_mask + q] & 1 else s
+                nxt[c] = head[v]
+                head[v] = c
         n_mask += nc
         for q in range(new, new + new_face_counts[i]):
             _append_face(faces, head, nxt, face, new_faces[q, 0], new_faces[q, 1], new_faces[q, 2])

@@ -218,9 +218,8 @@ def _gather(faces, head, nxt, s, cs, nb):
         f = cs[q] // 3
         for j in range(3):
             v = faces[f, j]
-            if v != s:
-                nb[m] = v
-                m += 1
+            nb[m] = v  # kept unless s, without a branch (m stays below 2 nc)
+            m += v != s
     return nc, _distinct_sorted(nb, m)
 
 
@@ -415,14 +414,14 @@ def _ring_sum(faces, head, nxt, v, other, quantised, total, nb):
     c = head[v]
     while c != -1:
         f = c // 3
-        for j in range(3):
-            w = faces[f, j]
-            if w != v:  # at most two a corner: nb has room
-                seen = w == other
-                for q in range(m):
-                    seen |= nb[q] == w
-                nb[m] = w
-                m += not seen
+        j = c - 3 * f  # v's place in the face: the other two are its neighbours
+        for step in range(1, 3):
+            w = faces[f, j + step - 3 if j + step >= 3 else j + step]
+            seen = (w == v) | (w == other)  # v twice: a degenerate face
+            for q in range(m):
+                seen |= nb[q] == w
+            nb[m] = w  # two a corner: nb has room
+            m += not seen
         c = nxt[c]
     total[:] = 0
     for q in range(m):

@@ -60,6 +60,7 @@ from ._kernels.stream_coding import (
     encode_connectivity,
     link_corners,
     plan_frame,
+    position_box,
 )
 from ._kernels.wedge_coding import (
     BAD_VALUE,
@@ -124,7 +125,22 @@ def grid_for(pm: ProgressiveMesh, bits: int = 16) -> Grid:
     """The grid over every position ``pm`` uses (coarse levels may leave the input box)."""
     if not _grid_bits(bits):
         raise InvalidOptionsError(f"bits={bits!r} must be an integer in [{_MIN_BITS}, {_MAX_BITS}]")
-    return Grid.over_box(*pm.position_bounds, bits)
+    return Grid.over_box(*_position_bounds(pm), bits)
+
+
+def _position_bounds(pm: ProgressiveMesh) -> tuple[np.ndarray, np.ndarray]:
+    """``pm.position_bounds``, filled in by one pass of a kernel when it is not known
+    yet (a mesh just built: numpy took ~60 ms on dragon, before the encoder could
+    start), the same values (``position_box`` leaves the cases where they could differ
+    to numpy)."""
+    if "position_bounds" not in vars(pm):  # functools.cached_property keeps it there
+        base = pm.base_vertices.reshape(-1, 3)
+        splits = pm.split_positions.reshape(-1, 3)
+        if base.dtype == splits.dtype == np.float64:
+            low, high = np.empty(3), np.empty(3)
+            if position_box(np.ascontiguousarray(base), np.ascontiguousarray(splits), low, high):
+                vars(pm)["position_bounds"] = (low, high)
+    return pm.position_bounds
 
 
 def _is_integer(value, low: int = 0, high: float = float("inf")) -> bool:

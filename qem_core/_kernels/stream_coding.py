@@ -137,6 +137,34 @@ _PLACEMENT = 3
 
 
 @_kernel
+def position_box(base, splits, low, high):
+    """The box of the rows of ``base`` (n, 3) and ``splits`` (m, 3) into low and high
+    (3,), in one pass (numpy's min and max along the first axis of (m, 3) arrays take
+    ~30 ms each on dragon's 870 000 split positions, ahead of the encoder's threads).
+    Returns False, the box unknown, where numpy's answer might differ from a pass of
+    comparisons: no rows, a NaN, or a corner coordinate of 0 (0.0 or -0.0: which one
+    min returns is numpy's choice, and the grid's bytes keep the sign)."""
+    if base.shape[0] + splits.shape[0] == 0:
+        return False
+    first = base if base.shape[0] else splits
+    for d in range(3):
+        low[d] = first[0, d]
+        high[d] = first[0, d]
+    for rows in (base, splits):
+        for i in range(rows.shape[0]):
+            for d in range(3):
+                x = rows[i, d]
+                if x != x:
+                    return False
+                low[d] = min(low[d], x)
+                high[d] = max(high[d], x)
+    for d in range(3):
+        if low[d] == 0.0 or high[d] == 0.0:
+            return False
+    return True
+
+
+@_kernel
 def link_corners(faces, n_faces, head, nxt):
     """Fill the corner lists of faces[:n_faces]; returns False if a corner is not a
     vertex of ``head``."""

@@ -10,6 +10,9 @@ seed corpus (``corpus.py``: small files of every kind written by the project's o
 writers, plus the small shared meshes and earlier findings when ``../shared`` exists)
 changed by the mutators of ``mutate.py``: byte-level changes for every target, and for
 the msgpack-framed formats (.qpm header, split-stream frames, the msgpack mesh) changes
-of the decoded values themselves, with checksums made right again so that the input
-reaches the code behind them.
+of the decoded values themselves, and for .qpm of its stored arrays' elements (edge values
+of their types), with checksums made right again so that the input reaches the code
+behind them. Run with ``NUMBA_BOUNDSCHECK=1`` and an empty ``NUMBA_CACHE_DIR`` (numba's
+cache does not key on the flag), an index out of a kernel's arrays is an IndexError: a
+finding, where it would otherwise corrupt memory.
 """

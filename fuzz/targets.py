@@ -13,6 +13,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import msgpack
+import numpy as np
 
 import qem_core
 from qem_core.codecs.archive import open_archive
@@ -145,11 +146,69 @@ def _mutate_glb(data: bytes, rng: random.Random, corpus: list[bytes]) -> bytes:
     return mutate_bytes(data, rng, corpus)
 
 
+# What `_mutate_qpm_array` sets an element of a stored integer array to, besides small
+# changes and other elements' values: counts and ids near the ends of small arrays, and
+# the edges of the integer types (offsets whose int64 steps wrap around once got past
+# checks by np.diff and made np.repeat write past its array).
+_EDGE_INTEGERS = (0, 1, -1, 2, 3, 255, 256, 2**15, 2**16, 2**31 - 1, 2**31, 2**32 - 1,
+                  2**62, 2**63 - 1, -(2**31), -(2**62), -(2**63))  # fmt: skip
+_EDGE_FLOATS = (0.0, -0.0, 1.0, -1.0, 1e-40, 65504.0, 1e30, -1e30, float("inf"), float("nan"))
+
+
+def _in_type(value: int, dtype: np.dtype) -> int:
+    """``value`` wrapped into the range of the integer type ``dtype``."""
+    bits = 8 * dtype.itemsize
+    value %= 1 << bits
+    return value - (1 << bits) if dtype.kind == "i" and value >= 1 << (bits - 1) else value
+
+
+def _mutate_qpm_array(body: bytes, rng: random.Random) -> bytes | None:
+    """One element of one array stored in the .qpm body (or a run of them) set to an edge
+    value, another element's value or itself give or take 2; the header untouched, so
+    that the change reaches the loader's checks of the arrays' contents and the kernels
+    behind them. None when the header does not name an array held in the body."""
+    try:
+        (length,) = struct.unpack_from("<I", body, 12)
+        header = msgpack.unpackb(body[16 : 16 + length], raw=False)
+        entries = []
+        for _name, dtype, shape, offset in header["arrays"]:
+            dtype, size = np.dtype(dtype), int(np.prod(shape))
+            at = 16 + length + offset
+            fits = type(offset) is int and 0 <= offset and at + size * dtype.itemsize <= len(body)
+            if dtype.kind in "iuf" and 0 < size and fits:
+                entries.append((dtype, size, at))
+    except Exception:  # an earlier change: not a header that names arrays
+        return None
+    if not entries:
+        return None
+    dtype, size, at = rng.choice(entries)
+    values = np.frombuffer(body, dtype, count=size, offset=at).copy()
+    first = rng.randrange(size)
+    run = rng.choice([1, 1, 1, 2, 3, rng.randrange(1, size + 1)])
+    for i in range(first, min(size, first + run)):
+        if dtype.kind == "f":
+            values[i] = rng.choice(_EDGE_FLOATS)
+            continue
+        choice = rng.random()
+        if choice < 0.3:
+            value = int(values[i]) + rng.choice((-2, -1, 1, 2))
+        elif choice < 0.5:
+            value = int(values[rng.randrange(size)])
+        else:
+            value = rng.choice(_EDGE_INTEGERS)
+        values[i] = _in_type(value, dtype)
+    return body[:at] + values.tobytes() + body[at + values.nbytes :]
+
+
 def _mutate_qpm(data: bytes, rng: random.Random, corpus: list[bytes]) -> bytes:
-    """The header's values (msgpack at bytes 16..16 + its length) or any bytes, then the
-    trailing CRC-32 made right."""
+    """An element of a stored array, the header's values (msgpack at bytes 16..16 + its
+    length) or any bytes, then the trailing CRC-32 made right."""
     body = data[:-4]
-    if rng.random() < 0.6 and len(body) >= 16:
+    choice = rng.random()
+    changed = _mutate_qpm_array(body, rng) if choice < 0.3 else None
+    if changed is not None:
+        body = changed
+    elif choice < 0.7 and len(body) >= 16:
         (length,) = struct.unpack_from("<I", body, 12)
         try:
             header = msgpack.unpackb(body[16 : 16 + length], raw=False)

@@ -122,18 +122,24 @@ def _shift_low(enc, out):
 
 @_kernel
 def encode_bit(enc, out, probs, ctx, bit):
+    # The range in a local: a store to probs (or out) could alias enc for the compiler,
+    # which would otherwise load enc[RANGE] again after each (a coded bit's latency is
+    # what bounds the coder).
     p = np.int64(probs[ctx])
-    bound = (enc[RANGE] >> PROB_BITS) * p
+    range_ = enc[RANGE]
+    bound = (range_ >> PROB_BITS) * p
     if bit == 0:
-        enc[RANGE] = bound
+        range_ = bound
         probs[ctx] = p + ((ONE - p) >> RATE)
     else:
         enc[LOW] += bound
-        enc[RANGE] -= bound
+        range_ -= bound
         probs[ctx] = p - (p >> RATE)
-    while enc[RANGE] < TOP:
-        enc[RANGE] <<= 8
+    while range_ < TOP:
+        range_ <<= 8
+        enc[RANGE] = range_
         _shift_low(enc, out)
+    enc[RANGE] = range_
 
 
 @_kernel

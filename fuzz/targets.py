@@ -6,6 +6,7 @@ the code past the check)."""
 from __future__ import annotations
 
 import json
+import math
 import random
 import struct
 import zlib
@@ -172,10 +173,10 @@ def _mutate_qpm_array(body: bytes, rng: random.Random) -> bytes | None:
         header = msgpack.unpackb(body[16 : 16 + length], raw=False)
         entries = []
         for _name, dtype, shape, offset in header["arrays"]:
-            dtype, size = np.dtype(dtype), int(np.prod(shape))
+            dtype, size = np.dtype(dtype), math.prod(shape)  # ints: no overflow warning
             at = 16 + length + offset
             fits = type(offset) is int and 0 <= offset and at + size * dtype.itemsize <= len(body)
-            if dtype.kind in "iuf" and 0 < size and fits:
+            if dtype.kind in "iuf" and type(size) is int and 0 < size and fits:
                 entries.append((dtype, size, at))
     except Exception:  # an earlier change: not a header that names arrays
         return None

@@ -106,12 +106,16 @@ def _write_level(pm: qem_core.ProgressiveMesh, n: int, output: str, fmt: str) ->
     level = pm.lod_mesh(n)  # with the appearance attributes, if any
     vertices, faces = level.vertices, level.faces
     # A textured OBJ names its .mtl and image, written beside it (not beside stdout).
-    library = Path(output).stem if fmt == "obj" and level.texture and output != "-" else None
+    looked = level.texture or level.materials
+    library = Path(output).stem if fmt == "obj" and looked and output != "-" else None
     content = qem_core.encode_mesh(vertices, faces, fmt, level.vertex_attributes,
-                                   level.texture, level.corner_uvs, material_library=library)
+                                   level.texture, level.corner_uvs, material_library=library,
+                                   materials=level.materials,
+                                   face_materials=level.face_materials)  # fmt: skip
     write_atomically(output, content)
     if library is not None:
-        for name, companion in codecs.obj_companions(library, level.texture).items():
+        companions = codecs.obj_companions(library, level.texture, level.materials)
+        for name, companion in companions.items():
             write_atomically(str(Path(output).with_name(name)), companion)
     return {
         "path": output,

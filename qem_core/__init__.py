@@ -15,7 +15,7 @@ from .errors import (
     MeshFormatError,
     QemError,
 )
-from .mesh import Mesh
+from .mesh import MAX_MATERIALS, Material, Mesh
 from .options import BuildOptions
 from .preload import warm_up
 from .progressive import (
@@ -33,11 +33,14 @@ def build_mesh(mesh: Mesh, options=None, progress=None) -> ProgressiveMesh:
     """`build` for a loaded `Mesh`, keeping its appearance: texture coordinates (per
     corner or per vertex), vertex colours and normals enter Hoppe's quadric with the
     weights of the options, travel with the levels (`ProgressiveMesh.lod_mesh`), and the
-    texture image is kept. The name is kept in the metadata."""
+    texture image is kept (each material's, for a mesh of several). The name is kept in
+    the metadata."""
     pm = build(mesh.vertices, mesh.faces, options=options, progress=progress, attributes_of=mesh)
     if mesh.name:
         pm.metadata["name"] = mesh.name
     pm.texture = mesh.texture
+    if mesh.face_materials is not None and pm.attribute_layout is not None:
+        pm.materials = mesh.materials
     return pm
 
 
@@ -46,6 +49,8 @@ __all__ = [
     "CorruptFileError",
     "InvalidMeshError",
     "InvalidOptionsError",
+    "MAX_MATERIALS",
+    "Material",
     "Mesh",
     "MeshFormatError",
     "ProgressiveMesh",

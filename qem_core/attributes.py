@@ -32,7 +32,13 @@ __all__ = ["AttributeLayout", "Wedges", "corner_values_to_mesh", "make_wedges"]
 FLOAT32_HEADROOM = float(np.finfo(np.float32).max) / 2
 _CHANNELS = (("uv", 2, "uv_weight"), ("color", None, "color_weight"),
              ("normal", 3, "normal_weight"))
-_CHANNEL_WIDTHS = {"uv": (2,), "color": (3, 4), "normal": (3,)}
+_CHANNEL_WIDTHS = {"uv": (2,), "color": (3, 4), "normal": (3,), "material": (1,)}
+# The material of a mesh of several is one more wedge value, constant over a wedge: so
+# faces of two materials never share a wedge (their border is a seam, as at a UV seam),
+# contractions merge wedges only within a dying face (one material), and the material
+# travels in the .qpm, the levels and the split stream like any wedge value. Constant,
+# it adds nothing to a cost; its weight only sets the scale it is stored at.
+MATERIAL_WEIGHT = 1.0
 
 
 def _is_int(value: object) -> bool:
@@ -161,6 +167,16 @@ def make_wedges(mesh: Mesh, face_map: np.ndarray, prepared_faces: np.ndarray,
         names.append(name)
         widths.append(per_corner.shape[1])
         scales.extend([weight * diagonal] * per_corner.shape[1])
+    if mesh.face_materials is not None:
+        materials = np.asarray(mesh.face_materials)
+        if materials.shape != (mesh.faces.shape[0],):
+            raise InvalidMeshError(
+                f"face materials have shape {materials.shape}; expected ({mesh.faces.shape[0]},)"
+            )
+        columns.append(np.repeat(materials[input_faces()].astype(np.float64), 3)[:, None])
+        names.append("material")
+        widths.append(1)
+        scales.append(MATERIAL_WEIGHT * diagonal)
     if not columns:
         return None
     scale = np.asarray(scales, np.float64)
@@ -193,11 +209,14 @@ def corner_values_to_mesh(vertices: np.ndarray, faces: np.ndarray, face_wedges: 
     corner_vertex = faces.reshape(-1)
     corners_per_vertex = np.bincount(corner_vertex, minlength=n).astype(np.float64)
     attributes: dict[str, np.ndarray] = {}
-    corner_uvs = None
+    corner_uvs = face_materials = None
     column = 0
     for name, width in zip(layout.names, layout.widths, strict=True):
         values = per_corner[:, column : column + width]
         column += width
+        if name == "material":  # one per face, the same at its three corners
+            face_materials = np.rint(values[0::3, 0]).astype(np.int32)
+            continue
         if name == "uv" and layout.corner_uvs:
             corner_uvs = values.reshape(-1, 3, 2).astype(np.float32)
             continue
@@ -209,4 +228,4 @@ def corner_values_to_mesh(vertices: np.ndarray, faces: np.ndarray, face_wedges: 
             mean = np.where(length > 0.0, mean / np.maximum(length, 1e-300), mean)
         attributes[name] = mean.astype(np.float32)
     return Mesh(vertices=vertices, faces=faces, vertex_attributes=attributes,
-                corner_uvs=corner_uvs)
+                corner_uvs=corner_uvs, face_materials=face_materials)

@@ -44,6 +44,7 @@ def encode_level(pm: ProgressiveMesh, n: int, format: str) -> EncodedLevel:
         }
     content = encode_mesh(
         level.vertices, level.faces, format, level.vertex_attributes, level.texture,
-        level.corner_uvs, **grid,
+        level.corner_uvs, materials=level.materials, face_materials=level.face_materials,
+        **grid,
     )  # fmt: skip
     return EncodedLevel(content, format, len(level.vertices), len(level.faces), float(pm.error(n)))

@@ -30,7 +30,7 @@ from ._kernels.refine_wedges import apply_wedge_run
 from .attributes import AttributeLayout, corner_values_to_mesh
 from .codecs._images import image_media_type
 from .errors import CorruptFileError, InvalidOptionsError
-from .mesh import Mesh
+from .mesh import Material, Mesh
 from .split_checks import (
     WEDGE_RUN_ARRAYS,
     check_level,
@@ -134,6 +134,7 @@ class ProgressiveMesh:
         split_cost: np.ndarray,
         metadata: dict | None = None,
         texture: bytes | None = None,
+        materials: list[Material] | None = None,
         **wedge_arrays: np.ndarray,
     ) -> None:
         self.base_vertices = base_vertices
@@ -146,6 +147,9 @@ class ProgressiveMesh:
         self.split_cost = split_cost
         self.metadata = dict(metadata or {})
         self.texture = texture
+        # A mesh of several materials: each one's look; its faces' materials are a wedge
+        # value (attributes.MATERIAL_WEIGHT), given back per face by ``lod_mesh``.
+        self.materials = materials
         unknown = set(wedge_arrays) - set(WEDGE_ARRAYS)
         if unknown:
             raise TypeError(f"unknown progressive mesh arrays {sorted(unknown)}")
@@ -284,6 +288,28 @@ class ProgressiveMesh:
             return None
         return image_media_type(self.texture) or "application/octet-stream"
 
+    def texture_image(self, material: int | None = None) -> tuple[bytes, str]:
+        """The image bytes and media type of the texture, or with several materials of
+        material ``material``'s; LookupError saying what there is when there is none."""
+        if self.materials is None:
+            if material is not None:
+                raise LookupError("it has one material; ask for its texture without one")
+            if self.texture is None:
+                raise LookupError("it has no texture image")
+            return self.texture, self.texture_type
+        if material is None:
+            textured = [k for k, look in enumerate(self.materials) if look.texture is not None]
+            raise LookupError(
+                f"it has {len(self.materials)} materials; name one "
+                f"(those with an image: {textured or 'none'})"
+            )
+        if not 0 <= material < len(self.materials):
+            raise LookupError(f"it has {len(self.materials)} materials, not a material {material}")
+        image = self.materials[material].texture
+        if image is None:
+            raise LookupError(f"its material {material} has no image")
+        return image, image_media_type(image) or "application/octet-stream"
+
     @property
     def attribute_layout(self) -> AttributeLayout | None:
         """Which appearance attributes the levels carry; None for geometry only."""
@@ -316,6 +342,8 @@ class ProgressiveMesh:
         mesh = corner_values_to_mesh(vertices, faces, face_wedges, wedge_values, layout)
         mesh.texture = self.texture
         mesh.name = name
+        if mesh.face_materials is not None:
+            mesh.materials = self.materials
         return mesh
 
     def wedge_level(self, n: int) -> tuple[np.ndarray, np.ndarray]:

@@ -11,7 +11,10 @@ Layout (little-endian)::
 
 Version 2 adds optional arrays: the wedge arrays of a mesh built with appearance
 attributes (`progressive.WEDGE_ARRAYS`, all or none) and the texture image bytes. A file
-without them is written as version 1, so older readers keep reading it.
+without them is written as version 1, so older readers keep reading it. Version 3 adds
+the materials of a mesh of several: their images one after another in
+``material_images``, and in the metadata ``materials``, one map each (name, colour, and
+the [offset, length] of its image); only such a file is written as version 3.
 
 A file from a newer version, a wrong checksum, or arrays that do not form a consistent
 progressive mesh raise CorruptFileError. docs/formats.md documents the format.
@@ -31,13 +34,14 @@ import msgpack
 import numpy as np
 
 from .errors import CorruptFileError
+from .mesh import Material, materials_from_entries
 from .progressive import WEDGE_ARRAYS, ProgressiveMesh, check_splits, check_wedge_arrays
 from .split_checks import decreases
 
 __all__ = ["FORMAT_VERSION", "MAGIC", "load", "save_qpm"]
 
 MAGIC = b"QEMPM\x00\r\n"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 
 # name -> (dtype, number of dimensions); the order is the order in the file.
 _ARRAYS = {
@@ -59,7 +63,7 @@ _WEDGE_DTYPES = {
     "wedge_relabel_corners": ("<i8", 1), "wedge_relabel_to": ("<i4", 1),
 }  # fmt: skip
 assert tuple(_WEDGE_DTYPES) == WEDGE_ARRAYS
-_OPTIONAL_ARRAYS = {**_WEDGE_DTYPES, "texture": ("|u1", 1)}
+_OPTIONAL_ARRAYS = {**_WEDGE_DTYPES, "texture": ("|u1", 1), "material_images": ("|u1", 1)}
 
 
 def save_qpm(pm: ProgressiveMesh, path) -> None:
@@ -68,6 +72,21 @@ def save_qpm(pm: ProgressiveMesh, path) -> None:
     optional = dict(pm.wedge_arrays)
     if pm.texture is not None:
         optional["texture"] = np.frombuffer(pm.texture, np.uint8)
+    metadata = pm.metadata
+    if pm.materials is not None:
+        images, entries_of_materials, at = [], [], 0
+        for material in pm.materials:
+            image = None
+            if material.texture is not None:
+                image = [at, len(material.texture)]
+                images.append(material.texture)
+                at += len(material.texture)
+            entries_of_materials.append({
+                "name": material.name, "image": image,
+                "color": None if material.color is None else [float(c) for c in material.color],
+            })  # fmt: skip
+        optional["material_images"] = np.frombuffer(b"".join(images), np.uint8)
+        metadata = {**metadata, "materials": entries_of_materials}
     for name, (dtype, _ndim) in {**_ARRAYS, **_OPTIONAL_ARRAYS}.items():
         array = optional.get(name) if name in _OPTIONAL_ARRAYS else getattr(pm, name, None)
         if array is None:
@@ -79,8 +98,8 @@ def save_qpm(pm: ProgressiveMesh, path) -> None:
         padding = -len(data) % 8
         chunks.append(data + b"\0" * padding)
         offset += len(data) + padding
-    header = msgpack.packb({"arrays": entries, "metadata": pm.metadata})
-    version = FORMAT_VERSION if optional else 1
+    header = msgpack.packb({"arrays": entries, "metadata": metadata})
+    version = 3 if pm.materials is not None else 2 if optional else 1
     body = MAGIC + struct.pack("<II", version, len(header)) + header + b"".join(chunks)
     blob = body + struct.pack("<I", zlib.crc32(body))
     path = Path(path)
@@ -269,13 +288,16 @@ def _checked_progressive_mesh(arrays: dict, metadata: dict) -> ProgressiveMesh:
         raise CorruptFileError(f".qpm metadata name {mesh_name!r:.80} is not a string")
     vertex_map = arrays.pop("vertex_map")
     texture = arrays.pop("texture", None)
+    materials = _materials(arrays.pop("material_images", None), metadata.pop("materials", None))
     if any(name in arrays for name in WEDGE_ARRAYS):
         if not all(name in arrays for name in WEDGE_ARRAYS):
             raise CorruptFileError(".qpm file has some of the wedge arrays but not all")
         check_wedge_arrays(arrays, level_faces, metadata.get("attributes"))
     pm = ProgressiveMesh(
-        **arrays, metadata=metadata, texture=None if texture is None else texture.tobytes()
+        **arrays, metadata=metadata, texture=None if texture is None else texture.tobytes(),
+        materials=materials,
     )
+    _check_face_materials(pm)
     pm.vertex_map = vertex_map
     # The stream's grid spans every position (stream.grid_for): finite positions from
     # -1e308 to 1e308 would put its far corner, and the offsets it quantises, at infinity.
@@ -291,3 +313,42 @@ def _checked_progressive_mesh(arrays: dict, metadata: dict) -> ProgressiveMesh:
     # every split (milliseconds; the server keeps loaded meshes) finds it.
     pm.lod(pm.n_full)
     return pm
+
+
+def _materials(images: np.ndarray | None, entries: object) -> list[Material] | None:
+    """The materials a version 3 file lists, checked; None for a file without them."""
+    if images is None and entries is None:
+        return None
+    if images is None or not isinstance(entries, list):
+        raise CorruptFileError(".qpm has material images without their list, or the reverse")
+
+    def image_of(i: int, entry: dict) -> bytes | None:
+        image = entry.get("image")
+        if image is None:
+            return None
+        if not (isinstance(image, list) and len(image) == 2 and all(map(_is_size, image))
+                and image[0] + image[1] <= images.size):  # fmt: skip
+            raise CorruptFileError(
+                f".qpm material {i}'s image {image!r:.80} lies outside the material images"
+            )
+        return images[image[0] : image[0] + image[1]].tobytes()
+
+    return materials_from_entries(entries, image_of, CorruptFileError, ".qpm materials")
+
+
+def _check_face_materials(pm: ProgressiveMesh) -> None:
+    """Materials and the wedges' material values come together, and every value names a
+    listed material (a level's faces index the list with them)."""
+    layout = pm.attribute_layout
+    column = -1 if layout is None else layout.offset("material")
+    if (column >= 0) != (pm.materials is not None):
+        raise CorruptFileError(".qpm has materials without a material wedge value, or the reverse")
+    if column < 0:
+        return
+    w = pm.wedge_arrays
+    scale = np.float32(layout.scales[column])
+    for name in ("base_wedge_values", "wedge_update_values", "wedge_new_values"):
+        values = np.rint(w[name][:, column] / scale)
+        if values.size and not (values.min() >= 0 and values.max() < len(pm.materials)):
+            raise CorruptFileError(f".qpm {name} name a material beyond the "
+                                   f"{len(pm.materials)} listed")

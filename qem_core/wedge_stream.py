@@ -15,6 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ._kernels.wedge_coding import SplitRun, WedgeLevel, code_wedges
+from .mesh import MAX_MATERIALS
 from .progressive import ProgressiveMesh, VertexSplits, WedgeSplits
 from .quantise import AttributeGrid, QuantisedWedges
 
@@ -22,11 +23,12 @@ __all__ = ["WEDGE_BITS", "WedgeArrays", "WedgeCoder", "quantised_wedges", "wedge
 
 # Grid bits of each appearance attribute: UVs 12 (an eighth of a texel of a 1024-pixel
 # texture at most; each 2 more bits cost about 0.75 B a split on spot), colours 8 (the
-# 8-bit colours of the files, exactly), normals 10 (0.06 degrees).
-WEDGE_BITS = {"uv": 12, "color": 8, "normal": 10}
-# The grid of an attribute spans at least this box (so that 8-bit colours land on the
-# grid exactly); UVs span their values' range.
-_NOMINAL_BOX = {"color": (0.0, 1.0), "normal": (-1.0, 1.0)}
+# 8-bit colours of the files, exactly), normals 10 (0.06 degrees), materials 8 (their
+# numbers, exactly: at most MAX_MATERIALS of them).
+WEDGE_BITS = {"uv": 12, "color": 8, "normal": 10, "material": 8}
+# The grid of an attribute spans at least this box (so that 8-bit colours and material
+# numbers land on the grid exactly); UVs span their values' range.
+_NOMINAL_BOX = {"color": (0.0, 1.0), "normal": (-1.0, 1.0), "material": (0.0, MAX_MATERIALS - 1.0)}
 
 
 def wedge_grid_for(pm: ProgressiveMesh) -> AttributeGrid | None:

@@ -42,7 +42,7 @@ from urllib.parse import unquote
 import numpy as np
 
 from ..errors import InvalidMeshError, MeshFormatError
-from ..mesh import Mesh
+from ..mesh import MAX_MATERIALS, Material, Mesh
 from ._corners import split_at_seams, weld
 from ._floats import widened
 from ._images import image_media_type
@@ -165,8 +165,11 @@ def write_glb(
     vertex_attributes: dict[str, np.ndarray],
     texture: bytes | None = None,
     corner_uvs: np.ndarray | None = None,
+    materials: list[Material] | None = None,
+    face_materials: np.ndarray | None = None,
 ) -> bytes:
-    """Encode as a GLB: see the module docstring."""
+    """Encode as a GLB: see the module docstring. With ``materials`` (and the material
+    of each face), one primitive per material used, sharing the vertices."""
     uv = vertex_attributes.get("uv")
     source = None
     if corner_uvs is not None:
@@ -200,54 +203,39 @@ def write_glb(
         flipped = np.stack([uv[:, 0], 1.0 - uv[:, 1]], axis=1).astype(np.float32)
         attributes["TEXCOORD_0"] = blob.accessor(flipped, "VEC2", _ARRAY_BUFFER)
     index_type = "<u2" if vertices.shape[0] <= 0xFFFF else "<u4"
-    indices = blob.accessor(faces.astype(index_type).reshape(-1), "SCALAR", _ELEMENT_ARRAY_BUFFER)
-    extras = {}
-    if source is not None:
-        # Which input vertex each glTF vertex copies, so that the reader undoes exactly
-        # this split (and welds nothing else).
-        extras[_VERTEX_OF] = blob.view(source.astype("<u4").tobytes(), target=None)
-    material: dict = {
-        "pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 1.0},
-        "doubleSided": False,
-    }
+    if materials is None or face_materials is None:
+        materials, face_materials = [Material("qem-lod", texture)], np.zeros(len(faces), np.int32)
     gltf: dict = {
         "asset": {"version": "2.0", "generator": _GENERATOR},
         "scene": 0,
         "scenes": [{"nodes": [0]}],
         "nodes": [{"mesh": 0}],
-        "meshes": [
-            {
-                "primitives": [
-                    {
-                        "attributes": attributes,
-                        "indices": indices,
-                        "mode": _TRIANGLES,
-                        "material": 0,
-                        **({"extras": extras} if extras else {}),
-                    }
-                ]
-            }
-        ],
-        "materials": [material],
+        "meshes": [{"primitives": []}],
+        "materials": [],
     }
-    if texture is not None and uv is not None:
-        image_view = blob.view(texture, target=None)
-        gltf["images"] = [{"bufferView": image_view, "mimeType": _image_type(texture)}]
-        gltf["samplers"] = [
-            {
-                "magFilter": _LINEAR,
-                "minFilter": _LINEAR_MIPMAP_LINEAR,
-                "wrapS": _REPEAT,
-                "wrapT": _REPEAT,
-            }
-        ]
-        if gltf["images"][0]["mimeType"] == "image/webp":
-            # glTF's own sources are PNG and JPEG; a WebP one is the extension's.
-            gltf["textures"] = [{"sampler": 0, "extensions": {_WEBP: {"source": 0}}}]
-            gltf["extensionsUsed"] = gltf["extensionsRequired"] = [_WEBP]
-        else:
-            gltf["textures"] = [{"sampler": 0, "source": 0}]
-        material["pbrMetallicRoughness"]["baseColorTexture"] = {"index": 0}
+    # Faces of one material together, in their order: a primitive each.
+    order = np.argsort(face_materials, kind="stable")
+    used, starts = np.unique(face_materials[order], return_index=True)
+    if not used.size:  # no faces: one empty primitive all the same
+        used, starts = np.zeros(1, np.int64), np.zeros(1, np.int64)
+    for material_index, start, end in zip(used, starts, [*starts[1:], len(order)], strict=True):
+        look = materials[int(material_index)]
+        chosen = faces[order[start:end]].astype(index_type).reshape(-1)
+        gltf["meshes"][0]["primitives"].append({
+            "attributes": attributes,
+            "indices": blob.accessor(chosen, "SCALAR", _ELEMENT_ARRAY_BUFFER),
+            "mode": _TRIANGLES,
+            "material": len(gltf["materials"]),
+        })  # fmt: skip
+        gltf["materials"].append(
+            _material_entry(gltf, blob, look, look.texture if uv is not None else None)
+        )
+    if source is not None:
+        # Which input vertex each glTF vertex copies, so that the reader undoes exactly
+        # this split (and welds nothing else).
+        vertex_of = blob.view(source.astype("<u4").tobytes(), target=None)
+        for primitive in gltf["meshes"][0]["primitives"]:
+            primitive["extras"] = {_VERTEX_OF: vertex_of}
     gltf["accessors"] = blob.accessors
     gltf["bufferViews"] = blob.views
     binary = blob.data()
@@ -263,6 +251,39 @@ def write_glb(
             binary,
         ]
     )
+
+
+def _material_entry(gltf: dict, blob: _BinaryBuilder, look: Material,
+                    texture: bytes | None) -> dict:
+    """A glTF material of ``look``; its image, texture and sampler added to ``gltf``."""
+    material: dict = {
+        "name": look.name,
+        "pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 1.0},
+        "doubleSided": False,
+    }
+    if look.color is not None:
+        material["pbrMetallicRoughness"]["baseColorFactor"] = list(look.color)
+    if texture is None:
+        return material
+    image_type = _image_type(texture)
+    gltf.setdefault("images", []).append(
+        {"bufferView": blob.view(texture, target=None), "mimeType": image_type}
+    )
+    if "samplers" not in gltf:
+        gltf["samplers"] = [
+            {"magFilter": _LINEAR, "minFilter": _LINEAR_MIPMAP_LINEAR, "wrapS": _REPEAT,
+             "wrapT": _REPEAT}
+        ]  # fmt: skip
+    source = len(gltf["images"]) - 1
+    textures = gltf.setdefault("textures", [])
+    if image_type == "image/webp":
+        # glTF's own sources are PNG and JPEG; a WebP one is the extension's.
+        textures.append({"sampler": 0, "extensions": {_WEBP: {"source": source}}})
+        gltf["extensionsUsed"] = gltf["extensionsRequired"] = [_WEBP]
+    else:
+        textures.append({"sampler": 0, "source": source})
+    material["pbrMetallicRoughness"]["baseColorTexture"] = {"index": len(gltf["textures"]) - 1}
+    return material
 
 
 class _BinaryBuilder:
@@ -420,6 +441,9 @@ def _read_meshes(gltf: dict, buffers: list[bytes], files: Companions) -> Mesh:
     positions, faces, attributes, offset = [], [], [], 0
     first_primitive = None
     n_primitives = 0
+    looks: dict[tuple, int] = {}  # (image, colour) -> the material made of it
+    materials: list[Material] = []
+    face_looks: list[np.ndarray] = []
     # Primitives may share accessors, and each is copied: a 300 KB file whose thousands
     # of primitives name one POSITION accessor expanded to gigabytes. A vertex takes at
     # least 3 bytes of buffer (12 unquantised) and an index 1, so these budgets let a
@@ -427,7 +451,10 @@ def _read_meshes(gltf: dict, buffers: list[bytes], files: Companions) -> Mesh:
     buffer_bytes = sum(len(buffer) for buffer in buffers)
     vertex_budget = buffer_bytes // 3 + _SHARED_ALLOWANCE
     index_budget = buffer_bytes + 3 * _SHARED_ALLOWANCE
-    for mesh_index, matrix in _mesh_instances(gltf):
+    # Primitives of one placed mesh naming the same attribute accessors (a mesh of
+    # several materials, as qem-lod writes it) share their vertices: read once.
+    vertex_sets: dict[tuple, int] = {}
+    for instance, (mesh_index, matrix) in enumerate(_mesh_instances(gltf)):
         for primitive in _item(gltf, "meshes", mesh_index)["primitives"]:
             if primitive.get("mode", _TRIANGLES) != _TRIANGLES:
                 continue  # points and lines carry no surface
@@ -440,6 +467,34 @@ def _read_meshes(gltf: dict, buffers: list[bytes], files: Companions) -> Mesh:
                     f"GLB mesh {mesh_index} has a triangle primitive without a POSITION "
                     "attribute: glTF 2.0 requires one"
                 )
+            material = _material(gltf, buffers, primitive, files)
+            look = (material.texture, material.color)
+            if look not in looks:
+                looks[look] = len(materials)
+                materials.append(material)
+            shared = (instance, json.dumps(names, sort_keys=True), _uv_transform(gltf, primitive))
+            if "extensions" not in primitive and shared in vertex_sets and "indices" in primitive:
+                indices = _accessor(gltf, buffers, primitive["indices"], "indices", False)
+                indices = indices.reshape(-1).astype(np.int64)
+                if indices.size % 3:
+                    raise MeshFormatError(
+                        f"GLB triangle primitive has {indices.size} indices, not a multiple of 3"
+                    )
+                index_budget -= indices.size
+                if index_budget < 0:
+                    raise MeshFormatError(
+                        f"GLB primitives read more indices than {buffer_bytes} bytes of "
+                        "buffer can hold: they share accessors too many times over"
+                    )
+                start, count = vertex_sets[shared]
+                if indices.size and (indices.min() < 0 or indices.max() >= count):
+                    raise MeshFormatError(
+                        f"GLB triangle has vertex index {int(indices.max())}, but its "
+                        f"primitive has {count} vertices: the file is damaged"
+                    )
+                faces.append(indices.reshape(-1, 3) + start)
+                face_looks.append(np.full(indices.size // 3, looks[look], np.int32))
+                continue
             # Normalised integer positions are KHR_mesh_quantization's (its node scales them).
             vertices = _accessor(gltf, buffers, names["POSITION"], "POSITION", normalized=True)
             if "indices" in primitive:
@@ -472,8 +527,13 @@ def _read_meshes(gltf: dict, buffers: list[bytes], files: Companions) -> Mesh:
                     )
                 if name == "normal" and matrix is not None:
                     values = _turned_normals(values, matrix)
+                if name == "uv":  # each primitive's own material may transform its UVs
+                    values = _texture_transformed(values[:, :2].astype(np.float64), gltf,
+                                                  primitive)
                 primitive_attributes[name] = values
             attributes.append(primitive_attributes)
+            face_looks.append(np.full(indices.size // 3, looks[look], np.int32))
+            vertex_sets[shared] = (offset, vertices.shape[0])
             offset += vertices.shape[0]
     if first_primitive is None:
         raise MeshFormatError("GLB has no triangle primitive: nothing to simplify")
@@ -497,11 +557,11 @@ def _read_meshes(gltf: dict, buffers: list[bytes], files: Companions) -> Mesh:
     corner_uvs = None
     uv = vertex_attributes.pop("uv", None)
     if uv is not None:
-        uv = _texture_transformed(uv[:, :2].astype(np.float64), gltf, first_primitive)
+        uv = uv.astype(np.float64)
         uv[:, 1] = 1.0 - uv[:, 1]
         uv = uv.astype(np.float32)
         corner_uvs = uv[all_faces]
-    if n_primitives == 1 and _VERTEX_OF in (first_primitive.get("extras") or {}):
+    if len(vertex_sets) == 1 and _VERTEX_OF in (first_primitive.get("extras") or {}):
         kept, index = _unsplit(gltf, buffers, first_primitive["extras"][_VERTEX_OF], vertices)
     elif gltf.get("asset", {}).get("generator") == _GENERATOR:
         kept = index = np.arange(vertices.shape[0])  # qem-lod split nothing
@@ -515,13 +575,20 @@ def _read_meshes(gltf: dict, buffers: list[bytes], files: Companions) -> Mesh:
         all_faces = index[all_faces]
     if uv is not None and np.array_equal(uv[kept][index], uv):
         vertex_attributes["uv"] = np.ascontiguousarray(uv[kept])  # no seam: one UV each
-    return Mesh(
-        vertices=vertices,
-        faces=all_faces,
-        vertex_attributes=vertex_attributes,
-        corner_uvs=corner_uvs,
-        texture=_base_color_image(gltf, buffers, first_primitive, files),
-    )
+    mesh = Mesh(vertices=vertices, faces=all_faces, vertex_attributes=vertex_attributes,
+                corner_uvs=corner_uvs, texture=materials[0].texture)
+    if len(materials) > 1:
+        # Several looks: each kept, the faces told apart (an image without UVs to place
+        # it is no look at all).
+        if len(materials) > MAX_MATERIALS:
+            raise MeshFormatError(f"GLB uses {len(materials)} materials; qem-lod keeps at "
+                                  f"most {MAX_MATERIALS} apart")
+        if uv is None:
+            materials = [Material(m.name, None, m.color) for m in materials]
+        mesh.texture = None
+        mesh.materials = materials
+        mesh.face_materials = np.concatenate(face_looks)
+    return mesh
 
 
 # Node nesting past this is a cycle or a hostile file; real scenes nest a few levels.
@@ -740,6 +807,14 @@ def _formats_named(formats: tuple[tuple[int, bool | None], ...]) -> str:
     return ", ".join(names)
 
 
+def _uv_transform(gltf: dict, primitive: dict) -> str:
+    """The KHR_texture_transform of a primitive's base-colour texture as JSON ("null"
+    without one): primitives that share vertices but not this do not share UVs."""
+    material = _item(gltf, "materials", primitive["material"]) if "material" in primitive else {}
+    info = (material.get("pbrMetallicRoughness") or {}).get("baseColorTexture") or {}
+    return json.dumps(extension(info, "KHR_texture_transform"), sort_keys=True)
+
+
 def _texture_transformed(uv: np.ndarray, gltf: dict, primitive: dict) -> np.ndarray:
     """UVs (glTF's, origin top-left) under the KHR_texture_transform of the primitive's
     base-colour texture, if it has one: offset * rotation * scale, as the extension
@@ -762,14 +837,34 @@ def _texture_transformed(uv: np.ndarray, gltf: dict, primitive: dict) -> np.ndar
     return np.stack([cos * u + sin * v + ox, -sin * u + cos * v + oy], axis=1)
 
 
-def _base_color_image(
-    gltf: dict, buffers: list[bytes], primitive: dict, files: Companions
-) -> bytes | None:
-    """The embedded base-colour image bytes of a primitive's material, or None."""
+def _material(gltf: dict, buffers: list[bytes], primitive: dict, files: Companions) -> Material:
+    """A primitive's look: its material's base-colour image and factor (glTF's default
+    material, white, for a primitive without one)."""
     if "material" not in primitive:
-        return None
-    material = _item(gltf, "materials", primitive["material"])
-    texture_info = material.get("pbrMetallicRoughness", {}).get("baseColorTexture")
+        return Material("default", None, None)
+    index = primitive["material"]
+    material = _item(gltf, "materials", index)
+    factor = (material.get("pbrMetallicRoughness") or {}).get("baseColorFactor")
+    color = None
+    if factor is not None:
+        if not (isinstance(factor, list) and len(factor) == 4 and all(
+                isinstance(c, int | float) and not isinstance(c, bool) and np.isfinite(c)
+                for c in factor)):
+            raise MeshFormatError(f"GLB material {index} has baseColorFactor {factor!r:.80}; "
+                                  "glTF requires four numbers in [0, 1]")
+        # Exporters round past 1 now and then: clipped, as a renderer would.
+        color = tuple(min(1.0, max(0.0, float(c))) for c in factor)
+        color = None if color == (1.0, 1.0, 1.0, 1.0) else color
+    name = material.get("name")
+    name = name if isinstance(name, str) and name else f"material{index}"
+    return Material(name, _base_color_image(gltf, buffers, material, files), color)
+
+
+def _base_color_image(
+    gltf: dict, buffers: list[bytes], material: dict, files: Companions
+) -> bytes | None:
+    """The embedded base-colour image bytes of a material, or None."""
+    texture_info = (material.get("pbrMetallicRoughness") or {}).get("baseColorTexture")
     if texture_info is None:
         return None
     texture = _item(gltf, "textures", texture_info["index"])

@@ -22,6 +22,10 @@ decodes from):
                     float32}: u v of each face corner, face by face, in the order of
                     the indices (texture seams kept; origin bottom-left)
     texture         (optional) bin, the image bytes; texture_type its media type
+    materials       (optional, a mesh of several materials, without "texture") a list of
+                    2 to 256 maps {"name": str, "color": [r, g, b, a] in [0, 1] or nil,
+                    "texture": bin or nil, "texture_type": its media type or nil}
+    face_materials  (with "materials") bin of m uint8: the material of each face
     name            (optional) the mesh's name
     wedges          (optional) the appearance as wedges on the split stream's attribute
                     grid (a served level, so that a viewer refines it): {"grid": the
@@ -41,7 +45,7 @@ import msgpack
 import numpy as np
 
 from ..errors import InvalidOptionsError, MeshFormatError
-from ..mesh import Mesh
+from ..mesh import Material, Mesh, materials_from_entries
 from ..quantise import AttributeGrid, Grid, QuantisedWedges
 from ._floats import widened
 from ._images import image_media_type
@@ -79,6 +83,8 @@ def write_msgpack(
     grid_box: tuple[np.ndarray, np.ndarray] | None = None,
     name: str | None = None,
     wedges: QuantisedWedges | None = None,
+    materials: list[Material] | None = None,
+    face_materials: np.ndarray | None = None,
 ) -> bytes:
     """Encode in the msgpack form; `quantize_bits` None gives float32 positions, 1..16
     gives uint16 grid positions of that many bits, over `grid_box` (low, high) when
@@ -128,6 +134,13 @@ def write_msgpack(
     if texture is not None:
         message["texture"] = bytes(texture)
         message["texture_type"] = image_media_type(texture) or "application/octet-stream"
+    if materials is not None and face_materials is not None:
+        message["materials"] = [
+            {"name": m.name, "color": None if m.color is None else [float(c) for c in m.color],
+             "texture": m.texture, "texture_type": m.texture and image_media_type(m.texture)}
+            for m in materials
+        ]  # fmt: skip
+        message["face_materials"] = face_materials.astype(np.uint8).tobytes()
     if name is not None:
         message["name"] = str(name)
     if wedges is not None:
@@ -249,6 +262,7 @@ def read_msgpack(data: bytes) -> Mesh:
     if texture is not None and not isinstance(texture, bytes):
         raise MeshFormatError("'texture' must be bin (the image bytes)")
     name = message.get("name")
+    materials, face_materials = _materials(message, n_faces)
     return Mesh(
         vertices=vertices.reshape(-1, 3),
         faces=faces.reshape(-1, 3),
@@ -256,7 +270,29 @@ def read_msgpack(data: bytes) -> Mesh:
         corner_uvs=None if corner_uvs is None else corner_uvs.astype(np.float32),
         texture=texture,
         name=name if isinstance(name, str) else None,
+        materials=materials,
+        face_materials=face_materials,
     )
+
+
+def _materials(message: dict, n_faces: int) -> tuple[list[Material] | None, np.ndarray | None]:
+    """The "materials" list and "face_materials" of a message, checked; (None, None)
+    without them."""
+    entries = message.get("materials")
+    if entries is None:
+        return None, None
+
+    def image_of(i: int, entry: dict) -> bytes | None:
+        texture = entry.get("texture")
+        if texture is not None and not isinstance(texture, bytes):
+            raise MeshFormatError(f"'materials': material {i}'s 'texture' must be bin or nil")
+        return texture
+
+    materials = materials_from_entries(entries, image_of, MeshFormatError, "'materials'")
+    which = _array(message, "face_materials", "u1", n_faces)
+    if which.size and int(which.max()) >= len(materials):
+        raise MeshFormatError(f"'face_materials' name a material beyond the {len(materials)}")
+    return materials, which.astype(np.int32)
 
 
 def _message(data: bytes) -> dict:

@@ -37,7 +37,8 @@ import re
 import numpy as np
 
 from ..errors import MeshFormatError
-from ..mesh import Mesh
+from ..mesh import MAX_MATERIALS, Mesh
+from ..mesh import Material as Look
 from ._corners import per_vertex
 from ._images import IMAGE_SUFFIXES, image_media_type
 from ._polygons import polygon_corners
@@ -104,11 +105,17 @@ def read_obj(data: bytes, files: Companions | None = None) -> Mesh:
     if files is not None and lines[b"usemtl"]:
         polygon_start = np.cumsum(corner_counts) - corner_counts
         polygon = np.searchsorted(polygon_start, triangles[:, 0], side="right") - 1
-        texture, colour = _material_look(
+        texture, colour, looks, face_looks = _material_look(
             lines[b"mtllib"], lines[b"usemtl"], material_starts, polygon, files
         )
         if texture is not None and corner_uvs is None:
             texture = None  # an image without UVs to place it
+        if looks is not None and corner_uvs is not None:
+            return Mesh(
+                vertices=np.ascontiguousarray(positions[:, :3]), faces=faces,
+                vertex_attributes={k: v.astype(np.float32) for k, v in attributes.items()},
+                corner_uvs=corner_uvs, materials=looks, face_materials=face_looks,
+            )  # fmt: skip
         if texture is None and colour is not None and "color" not in attributes:
             per_vertex_colour = np.zeros((positions.shape[0], 3))
             per_vertex_colour[faces.reshape(-1)] = np.repeat(colour, 3, axis=0)
@@ -128,10 +135,12 @@ def _material_look(
     starts: list[int],
     polygon: np.ndarray,
     files: Companions,
-) -> tuple[bytes | None, np.ndarray | None]:
-    """(texture, per-face colours) from the faces' materials: the image when the faces
-    use exactly one, else None; the (faces, 3) diffuse colours when no image is used and
-    the faces' materials have two colours or more, else None."""
+) -> tuple[bytes | None, np.ndarray | None, list[Look] | None, np.ndarray | None]:
+    """(texture, per-face colours, looks, per-face look) from the faces' materials: the
+    image when the faces use exactly one, else None; with several images, each material
+    used as a look (its image, its ``Kd``) and the number of each face's; the (faces, 3)
+    diffuse colours when no image is used and the faces' materials have two colours or
+    more, else None."""
     materials: dict[str, Material] = {}
     for library in libraries:
         name = library.decode("utf-8", "replace").strip()
@@ -146,16 +155,43 @@ def _material_look(
     which = np.searchsorted(np.asarray(starts), polygon, side="right") - 1
     present = [used[i] for i in np.unique(which) if i >= 0]
     images = {m.texture for m in present if m is not None and m.texture}
-    if images:  # one image: the texture (if it is there); several: none of them
-        return (files.read(images.pop()) if len(images) == 1 else None), None
+    if len(images) == 1:  # one image: the texture (if it is there)
+        return files.read(images.pop()), None, None, None
+    if images:
+        return (None, None, *_looks(used, which, files))
     palette = np.array(
         [m.diffuse if m is not None and m.diffuse is not None else (1.0, 1.0, 1.0) for m in used]
         or [(1.0, 1.0, 1.0)]
     )
     colours = np.where((which >= 0)[:, None], palette[np.maximum(which, 0)], 1.0)
     if len(np.unique(colours, axis=0)) < 2:
+        return None, None, None, None
+    return None, colours, None, None
+
+
+def _looks(used: list[Material | None], which: np.ndarray,
+           files: Companions) -> tuple[list[Look] | None, np.ndarray | None]:
+    """The looks of the materials the faces use (each ``usemtl`` of the same material
+    one look; a face before any ``usemtl``, or naming a material no .mtl defines, white)
+    and each face's number among them; (None, None) when they are more than qem-lod
+    keeps apart."""
+    looks: dict[tuple, int] = {}
+    listed: list[Look] = []
+    number_of_use = np.zeros(len(used) + 1, np.int32)  # the last: no material
+    for i, material in enumerate([*used, None]):
+        if not np.any(which == (i if i < len(used) else -1)):
+            continue
+        texture = files.read(material.texture) if material and material.texture else None
+        colour = material.diffuse if material and material.diffuse is not None else None
+        colour = None if colour is None else (*(float(c) for c in colour), 1.0)
+        key = (texture, colour)
+        if key not in looks:
+            looks[key] = len(listed)
+            listed.append(Look(material.name if material else "default", texture, colour))
+        number_of_use[i] = looks[key]
+    if not 2 <= len(listed) <= MAX_MATERIALS:
         return None, None
-    return None, colours
+    return listed, number_of_use[which]
 
 
 def write_obj(
@@ -165,9 +201,13 @@ def write_obj(
     texture: bytes | None = None,
     corner_uvs: np.ndarray | None = None,
     material_library: str | None = None,
+    materials: list[Look] | None = None,
+    face_materials: np.ndarray | None = None,
 ) -> bytes:
     """Encode as OBJ text: see the module docstring. The texture itself is not in it:
-    OBJ names its image in a separate .mtl file (`obj_companions`)."""
+    OBJ names its image in a separate .mtl file (`obj_companions`). A mesh of several
+    materials written with a ``material_library`` has its faces in runs, one ``usemtl``
+    each (`material_names`)."""
     color = vertex_attributes.get("color")
     normal = vertex_attributes.get("normal")
     columns = [vertices]
@@ -175,7 +215,13 @@ def write_obj(
         columns.append(color[:, :3])
     parts = [b"# qem-lod\n"]
     textured = texture is not None and (corner_uvs is not None or "uv" in vertex_attributes)
-    if material_library is not None and textured:
+    several = material_library is not None and materials is not None and face_materials is not None
+    if several:
+        order = np.argsort(face_materials, kind="stable")
+        faces, face_materials = faces[order], face_materials[order]
+        corner_uvs = None if corner_uvs is None else corner_uvs[order]
+        parts.append(f"mtllib {material_library}.mtl\n".encode())
+    elif material_library is not None and textured:
         parts.append(f"mtllib {material_library}.mtl\nusemtl {material_library}\n".encode())
     parts.append(_format_rows("v", np.hstack(columns)))
     one_based = faces.astype(np.int64) + 1
@@ -200,7 +246,15 @@ def write_obj(
         slots.append(one_based)
     corners = np.stack(slots, axis=2)
     line = "f " + " ".join([corner_format] * 3) + "\n"
-    parts.append(((line * faces.shape[0]) % tuple(corners.ravel().tolist())).encode("ascii"))
+    if not several:
+        parts.append(((line * faces.shape[0]) % tuple(corners.ravel().tolist())).encode("ascii"))
+        return b"".join(parts)
+    names = material_names(material_library, materials)
+    used, starts = np.unique(face_materials, return_index=True)
+    for k, start, end in zip(used, starts, [*starts[1:], len(faces)], strict=True):
+        run = corners[start:end]
+        parts.append(f"usemtl {names[int(k)]}\n".encode())
+        parts.append(((line * run.shape[0]) % tuple(run.ravel().tolist())).encode("ascii"))
     return b"".join(parts)
 
 
@@ -210,25 +264,51 @@ def write_obj_zip(
     vertex_attributes: dict[str, np.ndarray],
     texture: bytes | None = None,
     corner_uvs: np.ndarray | None = None,
+    materials: list[Look] | None = None,
+    face_materials: np.ndarray | None = None,
 ) -> bytes:
     """The OBJ in a zip archive with what it names: ``mesh.obj``, and for a textured mesh
-    ``mesh.mtl`` and ``mesh_texture.png`` (or .jpg); one download that keeps the look."""
+    or one of several materials ``mesh.mtl`` and its images (``mesh_texture.png``, or
+    .jpg, .webp); one download that keeps the look."""
     textured = texture is not None and (corner_uvs is not None or "uv" in vertex_attributes)
-    library = "mesh" if textured else None
+    library = "mesh" if textured or materials is not None else None
     files = {"mesh.obj": write_obj(vertices, faces, vertex_attributes, texture, corner_uvs,
-                                   library)}  # fmt: skip
-    if textured:
-        files.update(obj_companions("mesh", texture))
+                                   library, materials, face_materials)}  # fmt: skip
+    if library is not None:
+        files.update(obj_companions(library, texture, materials))
     return write_archive(files)
 
 
-def obj_companions(material_library: str, texture: bytes) -> dict[str, bytes]:
-    """The files an OBJ written with ``material_library`` names: ``<name>.mtl`` with one
-    material whose ``map_Kd`` is the image, and the image, ``<name>_texture.png`` (or
-    .jpg, .webp), by file name."""
-    image = f"{material_library}_texture{IMAGE_SUFFIXES.get(image_media_type(texture), '.png')}"
-    mtl = f"newmtl {material_library}\nKd 1 1 1\nmap_Kd {image}\n"
-    return {f"{material_library}.mtl": mtl.encode(), image: bytes(texture)}
+def material_names(material_library: str, materials: list[Look]) -> list[str]:
+    """The ``newmtl`` name of each material: its own, made safe for an MTL line (one
+    word) and unique, led by its number."""
+    return [f"{material_library}_{k}_{re.sub(r'[^A-Za-z0-9_.-]', '_', look.name)[:40]}"
+            for k, look in enumerate(materials)]  # fmt: skip
+
+
+def obj_companions(material_library: str, texture: bytes | None,
+                   materials: list[Look] | None = None) -> dict[str, bytes]:
+    """The files an OBJ written with ``material_library`` names: ``<name>.mtl`` and the
+    images its ``map_Kd`` lines name, by file name. One texture: one material named
+    ``<name>``, its image ``<name>_texture.png`` (or .jpg, .webp). Several materials:
+    one ``newmtl`` each (`material_names`), ``Kd`` its colour and ``d`` its opacity,
+    its image ``<name>_texture<k>.png``."""
+    if materials is None:
+        materials, names, suffixes = [Look(material_library, texture)], [material_library], [""]
+    else:
+        names, suffixes = material_names(material_library, materials), range(len(materials))
+    lines, files = [], {}
+    for look, name, suffix in zip(materials, names, suffixes, strict=True):
+        red, green, blue, alpha = look.color or (1.0, 1.0, 1.0, 1.0)
+        lines.append(f"newmtl {name}\nKd {red:.6g} {green:.6g} {blue:.6g}\n")
+        if alpha < 1.0:
+            lines.append(f"d {alpha:.6g}\n")
+        if look.texture is not None:
+            kind = IMAGE_SUFFIXES.get(image_media_type(look.texture), ".png")
+            image = f"{material_library}_texture{suffix}{kind}"
+            lines.append(f"map_Kd {image}\n")
+            files[image] = bytes(look.texture)
+    return {f"{material_library}.mtl": "".join(lines).encode(), **files}
 
 
 def _format_rows(keyword: str, values: np.ndarray) -> bytes:

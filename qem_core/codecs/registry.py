@@ -17,7 +17,7 @@ from typing import BinaryIO
 import numpy as np
 
 from ..errors import InvalidMeshError, InvalidOptionsError, MeshFormatError
-from ..mesh import Mesh
+from ..mesh import MAX_MATERIALS, Material, Mesh
 from ..prepare import validate_mesh_arrays
 from ..quantise import QuantisedWedges
 from ._corners import checked_corner_uvs, finite_float32
@@ -143,6 +143,9 @@ def load_mesh(
     corner_uvs = mesh.corner_uvs
     if corner_uvs is not None:
         corner_uvs = checked_corner_uvs(corner_uvs, faces.shape[0], label)
+    materials, face_materials = _checked_materials(
+        mesh.materials, mesh.face_materials, faces.shape[0], label
+    )
     return Mesh(
         vertices=vertices,
         faces=faces,
@@ -150,7 +153,27 @@ def load_mesh(
         corner_uvs=corner_uvs,
         texture=_servable_texture(mesh.texture),
         name=name if name is not None else mesh.name,
+        materials=materials,
+        face_materials=face_materials,
     )
+
+
+def _checked_materials(
+    materials: list[Material] | None, face_materials: object, n_faces: int, label: str
+) -> tuple[list[Material] | None, np.ndarray | None]:
+    """Materials and face materials, checked (a reader's word is not trusted, nor a
+    caller's): 2 to MAX_MATERIALS looks, a number for each face naming one of them."""
+    if materials is None and face_materials is None:
+        return None, None
+    which = np.asarray(face_materials)
+    if materials is None or not 2 <= len(materials) <= MAX_MATERIALS:
+        raise MeshFormatError(f"{label}: materials must number 2 to {MAX_MATERIALS}")
+    if which.shape != (n_faces,) or which.dtype.kind not in "iu":
+        raise MeshFormatError(f"{label}: one material number a face, not shape {which.shape}")
+    if n_faces and (which.min() < 0 or which.max() >= len(materials)):
+        raise MeshFormatError(f"{label}: a face names a material beyond the {len(materials)}")
+    looks = [Material(m.name, _servable_texture(m.texture), m.color) for m in materials]
+    return looks, which.astype(np.int32)
 
 
 def _servable_texture(texture: bytes | None) -> bytes | None:
@@ -208,6 +231,8 @@ def encode_mesh(
     name: str | None = None,
     wedges: QuantisedWedges | None = None,
     material_library: str | None = None,
+    materials: list[Material] | None = None,
+    face_materials: object | None = None,
 ) -> bytes:
     """Encode a triangle mesh as "ply", "obj", "glb", "msgpack" or "zip" bytes ("zip":
     the OBJ with its .mtl and texture image, `obj.write_obj_zip`).
@@ -230,6 +255,10 @@ def encode_mesh(
         attribute grid (`qem_core.stream.quantised_wedges`), for a client that refines.
     material_library : "obj" only: with a texture and UVs, the OBJ names its material
         library ``<material_library>.mtl``, which `obj_companions` writes with the image.
+    materials, face_materials : a mesh of several materials (`Mesh.materials`): GLB
+        writes a primitive per material with its image or colour, OBJ a ``usemtl`` run
+        per material (with ``material_library``), "zip" the OBJ with its .mtl and every
+        image, msgpack the list and each face's number; PLY keeps no materials.
 
     Raises InvalidOptionsError for an unknown format or an option the format does not
     take, InvalidMeshError for bad arrays. docs/formats.md has each format's layout.
@@ -245,6 +274,9 @@ def encode_mesh(
         raise InvalidMeshError("texture must be the bytes of a PNG, JPEG or WebP image")
     if corner_uvs is not None:
         corner_uvs = checked_corner_uvs(corner_uvs, faces.shape[0], "mesh")
+    materials, face_materials = _checked_materials(materials, face_materials, faces.shape[0],
+                                                   "mesh")  # fmt: skip
+    looks = {"materials": materials, "face_materials": face_materials}
     if fmt != "msgpack" or quantize_bits is None:
         check_float32_positions(vertices)  # msgpack's grid takes any finite positions
     if fmt == "msgpack":
@@ -258,16 +290,20 @@ def encode_mesh(
             grid_box=grid_box,
             name=name,
             wedges=wedges,
+            **looks,
         )
     if quantize_bits is not None or grid_box is not None or wedges is not None:
         raise InvalidOptionsError(
             f"quantize_bits, grid_box and wedges apply to 'msgpack' only, not {fmt!r}"
         )
     if fmt == "obj":
-        return write_obj(vertices, faces, attributes, texture, corner_uvs, material_library)
+        return write_obj(vertices, faces, attributes, texture, corner_uvs, material_library,
+                         **looks)  # fmt: skip
     if material_library is not None:
         raise InvalidOptionsError(f"material_library applies to 'obj' only, not {fmt!r}")
-    return _WRITERS[fmt](vertices, faces, attributes, texture, corner_uvs)
+    if fmt == "ply":
+        return write_ply(vertices, faces, attributes, texture, corner_uvs)  # no materials
+    return _WRITERS[fmt](vertices, faces, attributes, texture, corner_uvs, **looks)
 
 
 def write_mesh(
@@ -291,6 +327,8 @@ def write_mesh(
         quantize_bits=quantize_bits,
         grid_box=grid_box,
         name=mesh.name,
+        materials=mesh.materials,
+        face_materials=mesh.face_materials,
     )
 
 

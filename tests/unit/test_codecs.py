@@ -719,7 +719,9 @@ def test_flipped_bytes_load_or_are_refused(name):
 def test_glb_primitives_sharing_one_accessor_without_end_are_refused(monkeypatch):
     """Regression: thousands of primitives naming one POSITION accessor copied it each
     time (a 300 KB file asked for gigabytes). Sharing is allowed up to the data the
-    buffers could hold (times four, plus an allowance, set to 0 here to test it small)."""
+    buffers could hold (times four, plus an allowance, set to 0 here to test it small).
+    Primitives of one mesh naming the same attribute accessors share their vertices (a
+    mesh of several materials); their indices still count against the budget."""
     from qem_core.codecs import glb
 
     monkeypatch.setattr(glb, "_SHARED_ALLOWANCE", 0)
@@ -729,6 +731,8 @@ def test_glb_primitives_sharing_one_accessor_without_end_are_refused(monkeypatch
             primitives=gltf["meshes"][0]["primitives"] * times
         )
 
-    assert load_mesh(_glb_with(primitives(4))).n_vertices == 4 * OCTAHEDRON[0].shape[0]
+    shared = load_mesh(_glb_with(primitives(4)))
+    assert shared.n_vertices == OCTAHEDRON[0].shape[0]
+    assert shared.n_faces == 4 * OCTAHEDRON[1].shape[0]
     with pytest.raises(MeshFormatError, match="share accessors"):
         load_mesh(_glb_with(primitives(40)))

@@ -373,24 +373,35 @@ def splits_answer(record: MeshRecord, stream, n1: int, n2: int) -> tuple[dict[st
 async def get_texture(
     mesh_id: str,
     reads: ReadsDep,
+    material: Annotated[
+        int | None,
+        Query(
+            ge=0,
+            le=qem_core.MAX_MATERIALS - 1,
+            description="for a mesh of several materials: which one's image (0-based)",
+        ),
+    ] = None,
     if_none_match: Annotated[str | None, Header()] = None,
 ) -> Response:
-    """The texture of a mesh uploaded with one (a GLB with its image): the image that
-    the UVs of every level refer to, also embedded in its GLB and msgpack levels. A 404
-    problem ``texture-not-found`` when the mesh has none (an OBJ upload does not bring
-    the image its material names)."""
+    """The texture of a mesh uploaded with one (a GLB with its image, an OBJ with its
+    .mtl and image in a zip): the image that the UVs of every level refer to, also
+    embedded in its GLB and msgpack levels. A mesh of several materials has an image per
+    textured material: ``material=k`` names one (the mesh's ``materials`` list gives their
+    order). A 404 problem ``texture-not-found`` when there is no such image."""
     record = await _find_ready(reads, mesh_id)
     # Whether there is a texture first: ``If-None-Match: *`` on a mesh without one is a
     # 404, not a 304 (the progressive mesh is cached, so this rarely loads anything).
     pm = await run_in_threadpool(reads.load, reads.levels.progressive_mesh, record)
-    if pm.texture is None:
-        raise Problem("texture-not-found", f"mesh {mesh_id} has no texture image")
-    etag = _etag(record, "texture")
+    try:
+        image, media_type = pm.texture_image(material)
+    except LookupError as error:
+        raise Problem("texture-not-found", f"mesh {mesh_id}: {error}") from None
+    etag = _etag(record, "texture") if material is None else _etag(record, "texture", material)
     if _matches(if_none_match, etag):
         return _not_modified(etag, {})
     return Response(
-        pm.texture,
-        media_type=pm.texture_type,
+        image,
+        media_type=media_type,
         headers={"ETag": etag, "Cache-Control": IMMUTABLE, "X-Content-Type-Options": "nosniff"},
     )
 

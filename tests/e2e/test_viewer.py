@@ -537,14 +537,19 @@ def test_refine_js_refuses_damaged_streams(tmp_path, damage, message):
 
 # The canvas screenshot decoded by the browser's own PNG decoder: the share of pixels
 # away from the background colour and the number of distinct colours.
-_IMAGE_STATS = """
-async (data) => {
+# The body of an async function of `data`, a base64 PNG: its `width`, `height` and RGBA
+# `pixels`, for the screenshots' checks.
+PNG_PIXELS_JS = """
   const blob = await (await fetch(`data:image/png;base64,${data}`)).blob();
   const bitmap = await createImageBitmap(blob);
-  const canvas = new OffscreenCanvas(bitmap.width, bitmap.height);
+  const { width, height } = bitmap;
+  const canvas = new OffscreenCanvas(width, height);
   const context = canvas.getContext("2d");
   context.drawImage(bitmap, 0, 0);
-  const pixels = context.getImageData(0, 0, bitmap.width, bitmap.height).data;
+  const pixels = context.getImageData(0, 0, width, height).data;
+"""
+
+_IMAGE_STATS = "async (data) => {" + PNG_PIXELS_JS + """
   const [r0, g0, b0] = pixels;
   let away = 0;
   const colours = new Set();
@@ -695,33 +700,41 @@ def test_server_streams_wedges_that_refine_its_levels(server, appearance_meshes)
         assert missing.json()["type"] == "/problems/texture-not-found"
 
 
+def open_at_full_detail(page, server_url: str, mesh_id: str, texture: bool = False) -> dict:
+    """Open the viewer on a mesh, wait until it shows full detail (and its texture);
+    returns the viewer's state."""
+    page.goto(f"{server_url}/#mesh={mesh_id}")
+    page.wait_for_function(
+        "(id) => { const s = window.qemViewer?.state; return s?.id === id &&"
+        " s.level === s.full && s.fullShownMs !== null; }",
+        arg=mesh_id,
+        timeout=READY_TIMEOUT_MS,
+    )
+    if texture:
+        page.wait_for_function("() => window.qemViewer.state.textureShown")
+    return page.evaluate("window.qemViewer.state")
+
+
+def assert_levels_on_screen_are_served(page, http: httpx.Client, url: str, levels) -> None:
+    """Each level set on screen, in turn, is the server's, wedges included."""
+    for n in levels:
+        page.evaluate("(n) => window.qemViewer.setLevel(n)", n)
+        assert page.evaluate("window.qemViewer.levelDigest()") == served_digest(http, url, n)[0]
+        assert page.evaluate("window.qemViewer.wedgeDigest()") == served_wedges_digest(
+            http, url, n
+        )
+
+
 def test_viewer_shows_texture_and_colours_while_it_refines(server, appearance_meshes, tmp_path):
     require_web_packages()
     with chromium_page(tmp_path / "profile") as page, httpx.Client(timeout=60) as http:
         for name, attributes in (("spot", ["uv"]), ("airplane", ["color"])):
             info = appearance_meshes[name]
             url = f"{server.url}/v1/meshes/{info['id']}"
-            page.goto(f"{server.url}/#mesh={info['id']}")
-            page.wait_for_function(
-                "(id) => { const s = window.qemViewer?.state; return s?.id === id &&"
-                " s.level === s.full && s.fullShownMs !== null; }",
-                arg=info["id"],
-                timeout=READY_TIMEOUT_MS,
-            )
-            if name == "spot":
-                page.wait_for_function("() => window.qemViewer.state.textureShown")
-            state = page.evaluate("window.qemViewer.state")
+            state = open_at_full_detail(page, server.url, info["id"], texture=name == "spot")
             assert state["attributes"] == attributes and state["failure"] is None
-            # The level on screen, down and up, is the server's, wedges included.
-            for n in (info["vertices"], info["vertices"] // 5, 100, info["vertices"] - 3):
-                page.evaluate("(n) => window.qemViewer.setLevel(n)", n)
-                assert (
-                    page.evaluate("window.qemViewer.levelDigest()")
-                    == served_digest(http, url, n)[0]
-                )
-                assert page.evaluate("window.qemViewer.wedgeDigest()") == served_wedges_digest(
-                    http, url, n
-                )
+            levels = (info["vertices"], info["vertices"] // 5, 100, info["vertices"] - 3)
+            assert_levels_on_screen_are_served(page, http, url, levels)
             page.evaluate("() => new Promise((done) => requestAnimationFrame(() => done()))")
             for overlay in ("#hud", "#controls"):
                 page.eval_on_selector(overlay, "node => { node.style.visibility = 'hidden'; }")

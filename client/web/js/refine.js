@@ -200,7 +200,32 @@ export function decodeBaseMesh(bytes) {
     indices,
     wedges: message.wedges === undefined ? null : decodeBaseWedges(message.wedges, nFaces),
     texture: texture && { bytes: texture, type: message.texture_type },
+    materials: baseMaterials(message.materials),
   };
+}
+
+/** The looks of a mesh of several materials (qem_core.codecs.msgpack_mesh's "materials"),
+ * checked: [{ name, color: [r, g, b, a] | null, texture: { bytes, type } | null }], or
+ * null for a mesh without them. Each face's material is the wedge value "material". */
+function baseMaterials(list) {
+  if (list === undefined || list === null) return null;
+  if (!Array.isArray(list) || list.length < 2 || list.length > 256) {
+    fail("base mesh: 'materials' must be a list of 2 to 256 maps");
+  }
+  return list.map((entry, i) => {
+    const color = entry?.color ?? null;
+    const ok =
+      entry &&
+      typeof entry.name === "string" &&
+      (color === null || (Array.isArray(color) && color.length === 4 && color.every((c) => c >= 0 && c <= 1))) &&
+      (entry.texture == null || entry.texture instanceof Uint8Array);
+    if (!ok) fail(`base mesh: 'materials' entry ${i} is not a material`);
+    return {
+      name: entry.name,
+      color,
+      texture: entry.texture ? { bytes: entry.texture, type: entry.texture_type ?? "image/png" } : null,
+    };
+  });
 }
 
 /** msgpack bin bytes of an exact length (any length when `length` is null). */
@@ -616,6 +641,7 @@ export class ProgressiveLevels {
     // wedge fields are ignored without.
     this.wedges = base.wedges ? new WedgeLevels(base, this, { decoder }) : null;
     this.texture = base.texture;
+    this.materials = base.materials;
   }
 
   facesAt(n) {

@@ -58,9 +58,10 @@ export class MeshScene {
     this.bindBuffers(geometry, levels);
     const names = levels.wedges?.grid.names ?? [];
     const textured = names.includes("uv") && levels.texture;
+    const several = names.includes("material") && levels.materials;
     const material = new THREE.MeshStandardMaterial({
       // White under a texture or vertex colours, which the colour would tint.
-      color: textured || names.includes("color") ? 0xffffff : 0xc9cdd6,
+      color: textured || several || names.includes("color") ? 0xffffff : 0xc9cdd6,
       roughness: 0.65,
       metalness: 0.0,
       flatShading: !names.includes("normal"),
@@ -79,6 +80,7 @@ export class MeshScene {
     this.mesh = mesh;
     this.textureShown = false;
     if (textured) this.loadTexture(levels, material);
+    if (several) this.loadAtlas(levels, material, names.includes("uv"));
     this.camera.near = radius / 100;
     this.camera.far = radius * 100;
     this.camera.position.set(0, 0.2 * radius, 2.6 * radius);
@@ -127,6 +129,69 @@ export class MeshScene {
       undefined,
       () => URL.revokeObjectURL(url), // a broken image: the mesh stays untextured
     );
+  }
+
+  /** A mesh of several materials: their looks drawn side by side in one atlas (each
+   * material's image, or white, tinted by its colour), and the material's shader told to
+   * sample each face's tile, chosen by the render vertices' "material" value (the same
+   * at a face's three corners: a material border is a seam). UVs repeat within a tile.
+   * Shown once every image is decoded (a broken one leaves its tile white). */
+  async loadAtlas(levels, material, withUvs) {
+    const looks = levels.materials;
+    const bitmaps = await Promise.all(
+      looks.map((look) =>
+        withUvs && look.texture
+          ? createImageBitmap(new Blob([look.texture.bytes], { type: look.texture.type })).catch(() => null)
+          : null,
+      ),
+    );
+    if (this.levels !== levels) return;
+    const cells = Math.ceil(Math.sqrt(looks.length));
+    const largest = Math.max(1, ...bitmaps.map((b) => (b ? Math.max(b.width, b.height) : 1)));
+    const limit = Math.floor(this.renderer.capabilities.maxTextureSize / cells);
+    const tile = Math.min(largest, limit, 2048);
+    const canvas = document.createElement("canvas");
+    canvas.width = canvas.height = cells * tile;
+    const context = canvas.getContext("2d");
+    looks.forEach((look, k) => {
+      const x = (k % cells) * tile;
+      const y = Math.floor(k / cells) * tile;
+      context.globalCompositeOperation = "source-over";
+      context.fillStyle = "#ffffff";
+      context.fillRect(x, y, tile, tile);
+      if (bitmaps[k]) context.drawImage(bitmaps[k], x, y, tile, tile);
+      if (look.color) {
+        const [r, g, b] = look.color.map((c) => Math.round(255 * c));
+        context.globalCompositeOperation = "multiply";
+        context.fillStyle = `rgb(${r}, ${g}, ${b})`;
+        context.fillRect(x, y, tile, tile);
+      }
+    });
+    bitmaps.forEach((b) => b?.close());
+    const texture = new THREE.CanvasTexture(canvas);
+    texture.colorSpace = THREE.SRGBColorSpace;
+    material.map = texture;
+    material.onBeforeCompile = (shader) => {
+      shader.uniforms.atlasCells = { value: cells };
+      shader.vertexShader = shader.vertexShader
+        .replace("void main() {", "attribute float material;\nvarying float vMaterial;\nvoid main() {")
+        .replace("#include <begin_vertex>", "#include <begin_vertex>\nvMaterial = material;");
+      // Without UVs a tile's centre gives its colour.
+      const uv = withUvs ? "vMapUv" : "vec2(0.5)";
+      shader.fragmentShader = shader.fragmentShader
+        .replace("void main() {", "uniform float atlasCells;\nvarying float vMaterial;\nvoid main() {")
+        .replace(
+          "#include <map_fragment>",
+          `float cell = floor(vMaterial + 0.5);
+          vec2 corner = vec2(mod(cell, atlasCells), atlasCells - 1.0 - floor(cell / atlasCells));
+          vec2 atlasUv = (corner + fract(${uv})) / atlasCells;
+          // The gradients of the unwrapped UVs: no seam of blur where fract wraps.
+          diffuseColor *= textureGrad(map, atlasUv, dFdx(${uv}) / atlasCells, dFdy(${uv}) / atlasCells);`,
+        );
+    };
+    material.needsUpdate = true;
+    this.textureShown = true;
+    this.changed();
   }
 
   clear() {

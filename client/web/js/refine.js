@@ -42,6 +42,8 @@ const S_BUCKET_BITS = 5;
 const DIFF_BITS = 13; // as stream_coding.py: shifts that keep products below 2^53
 const NORMAL_BITS = 12;
 const LAPLACE_BITS = 20;
+const FAN_BLOCK = 16; // int32s per vertex in SplitState.fan: a 64-byte cache line
+const FAN_INLINE = FAN_BLOCK - 2; // corners a block holds before its list spills
 const FRAME_SPLIT_LIMIT = 1 << 16; // as qem_core.stream: what one frame may allocate
 // As stream_coding.FRAME_WORK_LIMIT: the corners of split vertices one frame may walk.
 const FRAME_WORK_LIMIT = 1 << 21;
@@ -74,6 +76,10 @@ const MID3_SLOTS = MID2_SLOTS + ROWS * IS;
 const MID_SIGN_SLOTS = MID3_SLOTS + ROWS * IS;
 export const CONTEXT_SLOTS = MID_SIGN_SLOTS + 6;
 
+// 2 ** n for the shifts below: `2 ** variable` calls the C library's pow (6 % of a
+// dragon decode).
+const POW2 = Float64Array.from({ length: 64 }, (_, n) => 2 ** n);
+
 /** Sort array[0..n) ascending: by insertion for the few entries of a vertex's ring (a
  * typed array's sort costs more than it sorts there), else the typed array's sort. */
 function sortPrefix(array, n) {
@@ -101,8 +107,8 @@ function signContext(value) {
  * (stream_coding._shift_to). */
 function shiftTo(values, bits) {
   const big = Math.max(Math.abs(values[0]), Math.abs(values[1]), Math.abs(values[2]));
-  if (big < 2 ** bits) return; // no shift
-  const divisor = 2 ** (bitLength(big) - bits);
+  if (big < POW2[bits]) return; // no shift
+  const divisor = POW2[bitLength(big) - bits];
   for (let d = 0; d < 3; d++) values[d] = Math.floor(values[d] / divisor);
 }
 
@@ -326,8 +332,14 @@ class SplitState {
   constructor(base, nFull, fFull) {
     this.faces = new Int32Array(3 * fFull);
     this.faces.set(base.indices);
-    this.head = new Int32Array(nFull).fill(-1);
-    this.next = new Int32Array(3 * fFull);
+    // Each vertex's corners in a block of its own (count, spill offset, then the
+    // corners): a split reads its vertex's whole list in one or two cache lines, where
+    // a linked list through the corners costs a dependent memory miss per corner (the
+    // decoder waited on those more than it computed). A list longer than the block
+    // moves to `spill`, at offset block[1], its capacity just before it.
+    this.fan = new Int32Array(FAN_BLOCK * nFull);
+    this.spill = new Int32Array(1024);
+    this.spillEnd = 1; // offset 0 means "not spilled"
     this.q = new Int32Array(3 * nFull); // grid positions of the received level
     this.q.set(base.positions);
     for (let c = 0; c < 3 * base.nFaces; c++) {
@@ -346,36 +358,73 @@ class SplitState {
     this.sumB = [0, 0, 0];
   }
 
+  /** v's corners (any order) are list[at .. at + count), count returned, list and at
+   * left in this.list and this.listAt. */
+  cornersOf(v) {
+    const block = FAN_BLOCK * v;
+    const spilled = this.fan[block + 1];
+    this.list = spilled ? this.spill : this.fan;
+    this.listAt = spilled || block + 2;
+    return this.fan[block];
+  }
+
   link(v, c) {
-    this.next[c] = this.head[v];
-    this.head[v] = c;
+    const fan = this.fan;
+    const block = FAN_BLOCK * v;
+    const n = fan[block];
+    let at = fan[block + 1];
+    if (at === 0 && n < FAN_INLINE) {
+      fan[block + 2 + n] = c;
+      fan[block] = n + 1;
+      return;
+    }
+    if (at === 0 || this.spill[at - 1] === n) at = this.respill(block, at, n);
+    this.spill[at + n] = c;
+    fan[block] = n + 1;
+  }
+
+  /** Move the n corners of the vertex at `block` (in the block, or spilled at `from`) to
+   * a new spill area of twice the room; its offset. */
+  respill(block, from, n) {
+    const capacity = 2 * Math.max(n, FAN_INLINE);
+    let at = this.spillEnd + 1;
+    if (at + capacity > this.spill.length) {
+      let size = this.spill.length;
+      while (size < at + capacity) size *= 2;
+      const grown = new Int32Array(size);
+      grown.set(this.spill);
+      this.spill = grown;
+    }
+    this.spill[at - 1] = capacity;
+    if (from === 0) this.spill.set(this.fan.subarray(block + 2, block + 2 + n), at);
+    else this.spill.copyWithin(at, from, from + n);
+    this.spillEnd = at + capacity;
+    this.fan[block + 1] = at;
+    return at;
   }
 
   unlink(v, c) {
-    let prev = -1;
-    let at = this.head[v];
-    while (at !== -1 && at !== c) {
-      prev = at;
-      at = this.next[at];
+    const n = this.cornersOf(v);
+    const list = this.list;
+    const at = this.listAt;
+    for (let i = 0; i < n; i++) {
+      if (list[at + i] !== c) continue;
+      list[at + i] = list[at + n - 1]; // the order of a list does not matter
+      this.fan[FAN_BLOCK * v] = n - 1;
+      return;
     }
-    if (at === -1) return;
-    if (prev === -1) this.head[v] = this.next[c];
-    else this.next[prev] = this.next[c];
   }
 
   /** Sorted corners of s into cs (this.nc of them), sorted distinct other vertices into
    * nb (this.nn). */
   gather(s) {
-    const { head, next, faces } = this;
-    let cs = this.cs;
-    let nc = 0;
-    for (let c = head[s]; c !== -1; c = next[c]) {
-      if (nc === cs.length) {
-        this.grow(2 * nc);
-        cs = this.cs;
-      }
-      cs[nc++] = c;
-    }
+    const faces = this.faces;
+    const nc = this.cornersOf(s);
+    if (nc > this.cs.length) this.grow(2 * nc);
+    const cs = this.cs;
+    const list = this.list;
+    const at = this.listAt;
+    for (let q = 0; q < nc; q++) cs[q] = list[at + q];
     sortPrefix(cs, nc);
     const nb = this.nb;
     let m = 0;
@@ -508,7 +557,7 @@ class SplitState {
     spread[0] = nn ? Math.floor(ax / nn) : 0;
     spread[1] = nn ? Math.floor(ay / nn) : 0;
     spread[2] = nn ? Math.floor(az / nn) : 0;
-    const divisor = 2 ** Math.max(0, bitLength(big) - DIFF_BITS);
+    const divisor = POW2[Math.max(0, bitLength(big) - DIFF_BITS)];
     let nx = 0;
     let ny = 0;
     let nz = 0;
@@ -552,7 +601,11 @@ class SplitState {
     const stamp = ++this.stamp; // marks the neighbours counted in this call
     total.fill(0);
     let count = 0;
-    for (let c = this.head[v]; c !== -1; c = this.next[c]) {
+    const n = this.cornersOf(v);
+    const list = this.list;
+    const at = this.listAt;
+    for (let i = 0; i < n; i++) {
+      const c = list[at + i];
       const f = c - (c % 3);
       for (let j = 0; j < 3; j++) {
         const w = faces[f + j];
@@ -902,7 +955,7 @@ export class ProgressiveLevels {
     // Every value so far is an exact integer in float64 (the coder's are below 2^34);
     // the 32-bit buffers take only positions on the grid (decode_connectivity refuses
     // the others too, so both decoders refuse the same frames).
-    const qMax = 2 ** this.bits - 1;
+    const qMax = POW2[this.bits] - 1;
     for (let axis = 0; axis < 3; axis++) {
       const old = q[3 * s + axis];
       const e = edge[axis];

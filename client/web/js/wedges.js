@@ -543,11 +543,11 @@ function findSorted(values, n, x) {
 /** v's corners numbered below `below`, ascending: [array, count] (scratch sc.mine). Adds
  * the corners it reads, all v's, to sc.reads (the frame's wedge work). */
 function sortedCorners(state, v, below, sc) {
-  let count = 0;
-  for (let c = state.head[v]; c !== -1; c = state.next[c]) count++;
+  const count = state.cornersOf(v);
+  const { list, listAt } = state;
   sc.mine = grow(sc.mine ?? new Int32Array(16), count);
   let n = 0;
-  for (let c = state.head[v]; c !== -1; c = state.next[c]) if (c < below) sc.mine[n++] = c;
+  for (let i = 0; i < count; i++) if (list[listAt + i] < below) sc.mine[n++] = list[listAt + i];
   sc.mine.subarray(0, n).sort();
   sc.reads += count;
   return [sc.mine, n];

@@ -43,7 +43,9 @@ const DIFF_BITS = 13; // as stream_coding.py: shifts that keep products below 2^
 const NORMAL_BITS = 12;
 const LAPLACE_BITS = 20;
 const FAN_BLOCK = 16; // int32s per vertex in SplitState.fan: a 64-byte cache line
-const FAN_INLINE = FAN_BLOCK - 2; // corners a block holds before its list spills
+const FAN_Q = 2; // where a block holds its vertex's grid position (3 int32s)
+const FAN_CORNERS = 5; // where its corners start
+const FAN_INLINE = FAN_BLOCK - FAN_CORNERS; // corners a block holds before its list spills
 const FRAME_SPLIT_LIMIT = 1 << 16; // as qem_core.stream: what one frame may allocate
 // As stream_coding.FRAME_WORK_LIMIT: the corners of split vertices one frame may walk.
 const FRAME_WORK_LIMIT = 1 << 21;
@@ -332,16 +334,18 @@ class SplitState {
   constructor(base, nFull, fFull) {
     this.faces = new Int32Array(3 * fFull);
     this.faces.set(base.indices);
-    // Each vertex's corners in a block of its own (count, spill offset, then the
-    // corners): a split reads its vertex's whole list in one or two cache lines, where
-    // a linked list through the corners costs a dependent memory miss per corner (the
-    // decoder waited on those more than it computed). A list longer than the block
-    // moves to `spill`, at offset block[1], its capacity just before it.
+    // Each vertex's corners and grid position in a block of its own (count, spill
+    // offset, position, then the corners): a split reads its vertex's whole list in one
+    // or two cache lines, and a neighbour's position brings in the list that a new face
+    // at it appends to, where a linked list through the corners costs a dependent memory
+    // miss per corner (the decoder waited on those more than it computed). A list longer
+    // than the block moves to `spill`, at offset block[1], its capacity just before it.
     this.fan = new Int32Array(FAN_BLOCK * nFull);
+    for (let v = 0; v < base.nVertices; v++) {
+      for (let d = 0; d < 3; d++) this.fan[FAN_BLOCK * v + FAN_Q + d] = base.positions[3 * v + d];
+    }
     this.spill = new Int32Array(1024);
     this.spillEnd = 1; // offset 0 means "not spilled"
-    this.q = new Int32Array(3 * nFull); // grid positions of the received level
-    this.q.set(base.positions);
     for (let c = 0; c < 3 * base.nFaces; c++) {
       const v = this.faces[c];
       if (v >= base.nVertices) fail("base mesh: a face names a vertex that does not exist");
@@ -364,7 +368,7 @@ class SplitState {
     const block = FAN_BLOCK * v;
     const spilled = this.fan[block + 1];
     this.list = spilled ? this.spill : this.fan;
-    this.listAt = spilled || block + 2;
+    this.listAt = spilled || block + FAN_CORNERS;
     return this.fan[block];
   }
 
@@ -374,7 +378,7 @@ class SplitState {
     const n = fan[block];
     let at = fan[block + 1];
     if (at === 0 && n < FAN_INLINE) {
-      fan[block + 2 + n] = c;
+      fan[block + FAN_CORNERS + n] = c;
       fan[block] = n + 1;
       return;
     }
@@ -396,7 +400,7 @@ class SplitState {
       this.spill = grown;
     }
     this.spill[at - 1] = capacity;
-    if (from === 0) this.spill.set(this.fan.subarray(block + 2, block + 2 + n), at);
+    if (from === 0) this.spill.set(this.fan.subarray(block + FAN_CORNERS, block + FAN_CORNERS + n), at);
     else this.spill.copyWithin(at, from, from + n);
     this.spillEnd = at + capacity;
     this.fan[block + 1] = at;
@@ -533,15 +537,16 @@ class SplitState {
    * nb), into shape (stream_coding._ring_shape): the spread per axis, the ring's normal
    * and the sign context of the curvature along it. */
   ringShape(s, nc, nn, shape) {
-    const { cs, nb, q, faces } = this;
-    const sx = q[3 * s];
-    const sy = q[3 * s + 1];
-    const sz = q[3 * s + 2];
+    const { cs, nb, faces } = this;
+    const q = this.fan;
+    const sx = q[FAN_BLOCK * s + FAN_Q];
+    const sy = q[FAN_BLOCK * s + FAN_Q + 1];
+    const sz = q[FAN_BLOCK * s + FAN_Q + 2];
     let big = 0;
     let [ax, ay, az] = [0, 0, 0]; // sums of |offset|
     let [lx, ly, lz] = [0, 0, 0]; // sums of offsets
     for (let j = 0; j < nn; j++) {
-      const w = 3 * nb[j];
+      const w = FAN_BLOCK * nb[j] + FAN_Q;
       const ox = q[w] - sx;
       const oy = q[w + 1] - sy;
       const oz = q[w + 2] - sz;
@@ -565,8 +570,8 @@ class SplitState {
       const c = cs[i];
       const f = c - (c % 3);
       const j = c % 3;
-      const u = 3 * faces[f + ((j + 1) % 3)];
-      const w = 3 * faces[f + ((j + 2) % 3)];
+      const u = FAN_BLOCK * faces[f + ((j + 1) % 3)] + FAN_Q;
+      const w = FAN_BLOCK * faces[f + ((j + 2) % 3)] + FAN_Q;
       let [ux, uy, uz] = [q[u] - sx, q[u + 1] - sy, q[u + 2] - sz];
       let [wx, wy, wz] = [q[w] - sx, q[w + 1] - sy, q[w + 2] - sz];
       if (divisor !== 1) {
@@ -597,9 +602,11 @@ class SplitState {
   /** Sum of the grid positions of v's distinct neighbours other than `other` into
    * total; returns their number (stream_coding._ring_sum). */
   ringSum(v, other, total) {
-    const { faces, q, seen } = this;
+    const { faces, fan, seen } = this;
     const stamp = ++this.stamp; // marks the neighbours counted in this call
-    total.fill(0);
+    total[0] = 0;
+    total[1] = 0;
+    total[2] = 0;
     let count = 0;
     const n = this.cornersOf(v);
     const list = this.list;
@@ -612,9 +619,10 @@ class SplitState {
         if (w === v || w === other || seen[w] === stamp) continue;
         seen[w] = stamp;
         count++;
-        total[0] += q[3 * w];
-        total[1] += q[3 * w + 1];
-        total[2] += q[3 * w + 2];
+        const at = FAN_BLOCK * w + FAN_Q;
+        total[0] += fan[at];
+        total[1] += fan[at + 1];
+        total[2] += fan[at + 2];
       }
     }
     return count;
@@ -627,7 +635,9 @@ class SplitState {
     const sumB = this.sumB;
     const a = this.ringSum(t, s, sumA);
     const b = this.ringSum(s, t, sumB);
-    prediction.fill(0);
+    prediction[0] = 0;
+    prediction[1] = 0;
+    prediction[2] = 0;
     if (a === 0 || b === 0 || a > SPAN_RING_LIMIT || b > SPAN_RING_LIMIT) return;
     const den = (a + 1) * (b + 1) - 1;
     for (let d = 0; d < 3; d++) {
@@ -799,7 +809,7 @@ export class ProgressiveLevels {
     const first = nFrom - this.nBase;
     const state = this.state;
     const sf = state.faces;
-    const q = state.q;
+    const fan = state.fan;
     const out = this.indices;
     const coder = new RangeDecoder(frame.coded);
     const probs = this.contexts;
@@ -886,7 +896,7 @@ export class ProgressiveLevels {
         if (forward && xl < 0) xl = x;
         if (!forward && xr < 0) xr = x;
       }
-      out.set(sf.subarray(3 * firstNew, 3 * face), 3 * firstNew); // as born
+      for (let c = 3 * firstNew; c < 3 * face; c++) out[c] = sf[c]; // as born
       state.predict(nc, xl, xr);
       const mark = state.mark;
       if (nc && coder.bit(probs, MASK_SLOTS)) {
@@ -903,10 +913,10 @@ export class ProgressiveLevels {
       this.wedges?.decodeSplit(i, s, t, state, nc, firstNew, face);
       this.decodePositions(coder, probs, state, s, t, shape, prediction, edge, mid, axes, slots);
       for (let axis = 0; axis < 3; axis++) {
-        const old = q[3 * s + axis];
+        const old = fan[FAN_BLOCK * s + FAN_Q + axis];
         const a = mid[axis];
-        q[3 * s + axis] = a;
-        q[3 * t + axis] = a + edge[axis];
+        fan[FAN_BLOCK * s + FAN_Q + axis] = a;
+        fan[FAN_BLOCK * t + FAN_Q + axis] = a + edge[axis];
         this.deltas[6 * (first + i) + axis] = a - old;
         this.deltas[6 * (first + i) + 3 + axis] = a + edge[axis] - old;
       }
@@ -924,7 +934,7 @@ export class ProgressiveLevels {
   /** A split's positions, its connectivity applied (decode_connectivity's last steps):
    * edge = t - s_new per axis, and into mid the new position of s. */
   decodePositions(coder, probs, state, s, t, shape, prediction, edge, mid, axes, slots) {
-    const q = state.q;
+    const fan = state.fan;
     const { spread, normal, bulge } = shape;
     state.spanPrediction(s, t, prediction);
     // position_span: the axes other than the normal's dominant one against the rings'
@@ -957,7 +967,7 @@ export class ProgressiveLevels {
     // the others too, so both decoders refuse the same frames).
     const qMax = POW2[this.bits] - 1;
     for (let axis = 0; axis < 3; axis++) {
-      const old = q[3 * s + axis];
+      const old = fan[FAN_BLOCK * s + FAN_Q + axis];
       const e = edge[axis];
       if (placement === 1) mid[axis] = old;
       else if (placement === 2) mid[axis] = old - e;

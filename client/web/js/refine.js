@@ -407,13 +407,16 @@ class SplitState {
     return at;
   }
 
+  /** Drop corner c from v's list, keeping it in order: lists stay sorted (corners join
+   * in increasing order: a new face's are the highest yet, and a relabelled corner goes
+   * to the new vertex t, whose list it starts), so gather's sort finds them in order. */
   unlink(v, c) {
     const n = this.cornersOf(v);
     const list = this.list;
     const at = this.listAt;
     for (let i = 0; i < n; i++) {
       if (list[at + i] !== c) continue;
-      list[at + i] = list[at + n - 1]; // the order of a list does not matter
+      list.copyWithin(at + i, at + i + 1, at + n);
       this.fan[FAN_BLOCK * v] = n - 1;
       return;
     }
@@ -1042,9 +1045,27 @@ export class ProgressiveLevels {
    * level reached. */
   setLevel(n) {
     const target = Math.max(this.nBase, Math.min(Math.round(n), this.received));
+    if (this.state && !this.wedges && target === this.received && 8 * (target - this.level) > target) {
+      this.copyReceivedLevel();
+    }
     while (this.level < target) this.applySplit(this.level - this.nBase);
     while (this.level > target) this.undoSplit(this.level - 1 - this.nBase);
     return this.level;
+  }
+
+  /** Move the buffers to the received level by copying the decoder's state, which holds
+   * it: one pass over the arrays instead of a random access per split crossed. */
+  copyReceivedLevel() {
+    const { fan, faces } = this.state;
+    const positions = this.positions;
+    for (let v = 0; v < this.received; v++) {
+      const at = FAN_BLOCK * v + FAN_Q;
+      positions[3 * v] = fan[at];
+      positions[3 * v + 1] = fan[at + 1];
+      positions[3 * v + 2] = fan[at + 2];
+    }
+    this.indices.set(faces.subarray(0, 3 * this.facesAt(this.received)));
+    this.level = this.received;
   }
 
   applySplit(k) {

@@ -356,8 +356,7 @@ class SplitState {
     this.mark = new Uint8Array(16);
     this.ys = new Int32Array(16); // vertices met walking around s
     this.keys = new Float64Array(16); // the fan's corners by side (fanKeys)
-    this.seen = new Int32Array(nFull); // ringSum's marks
-    this.stamp = 0;
+    this.met = new Int32Array(64); // ringSum's neighbours
     this.sumA = [0, 0, 0];
     this.sumB = [0, 0, 0];
   }
@@ -603,31 +602,39 @@ class SplitState {
   }
 
   /** Sum of the grid positions of v's distinct neighbours other than `other` into
-   * total; returns their number (stream_coding._ring_sum). */
+   * total; returns their number (stream_coding._ring_sum). The neighbours met are
+   * few, so they are looked up in a short list rather than marked in a per-vertex
+   * array (a memory miss each). */
   ringSum(v, other, total) {
-    const { faces, fan, seen } = this;
-    const stamp = ++this.stamp; // marks the neighbours counted in this call
-    total[0] = 0;
-    total[1] = 0;
-    total[2] = 0;
-    let count = 0;
+    const { faces, fan } = this;
     const n = this.cornersOf(v);
     const list = this.list;
     const at = this.listAt;
+    if (this.met.length < 2 * n) this.met = new Int32Array(4 * n);
+    const met = this.met;
+    let count = 0;
+    let x = 0;
+    let y = 0;
+    let z = 0;
     for (let i = 0; i < n; i++) {
       const c = list[at + i];
       const f = c - (c % 3);
       for (let j = 0; j < 3; j++) {
         const w = faces[f + j];
-        if (w === v || w === other || seen[w] === stamp) continue;
-        seen[w] = stamp;
-        count++;
-        const at = FAN_BLOCK * w + FAN_Q;
-        total[0] += fan[at];
-        total[1] += fan[at + 1];
-        total[2] += fan[at + 2];
+        if (w === v || w === other) continue;
+        let k = 0;
+        while (k < count && met[k] !== w) k++;
+        if (k < count) continue;
+        met[count++] = w;
+        const q = FAN_BLOCK * w + FAN_Q;
+        x += fan[q];
+        y += fan[q + 1];
+        z += fan[q + 2];
       }
     }
+    total[0] = x;
+    total[1] = y;
+    total[2] = z;
     return count;
   }
 

@@ -512,7 +512,7 @@ class SplitState {
    * mark[0..nc), the vertices met before `stop` go into ys; returns how many. */
   walk(nc, start, forward, stop) {
     const { mark, ys } = this;
-    mark.fill(0, 0, nc);
+    for (let q = 0; q < nc; q++) mark[q] = 0; // TypedArray.fill is a runtime call
     this.fanKeys(nc, forward);
     let y = start;
     let m = 0;
@@ -532,7 +532,7 @@ class SplitState {
   predict(nc, xl, xr) {
     if (xl >= 0) this.walk(nc, xl, true, xr);
     else if (xr >= 0) this.walk(nc, xr, false, -1);
-    else this.mark.fill(0, 0, nc);
+    else for (let q = 0; q < nc; q++) this.mark[q] = 0;
   }
 
   /** What the positions' contexts need of s's ring before the split (nn neighbours in

@@ -157,6 +157,14 @@ def seeds(target: str, shared: bool = True) -> list[bytes]:
     plain = qem_core.build(vertices, faces)
     mesh = qem_core.Mesh(vertices, faces, attributes, corner_uvs=corner_uvs)
     rich = qem_core.build_mesh(mesh)
+    # Two materials (the grid's halves), one with an image, one with a colour only.
+    looks = [qem_core.Material("image", _PNG), qem_core.Material("red", None, (1, 0, 0, 1))]
+    halves = (np.arange(len(faces)) >= len(faces) // 2).astype(np.int32)
+    several = qem_core.build_mesh(qem_core.Mesh(vertices, faces, attributes, corner_uvs=corner_uvs,
+                                                materials=looks, face_materials=halves))
+
+    def written_several(fmt: str) -> bytes:
+        return codecs.write_mesh(several.lod_mesh(several.n_full), fmt)
 
     def written(fmt: str) -> list[bytes]:  # without and with the attributes
         return [
@@ -167,10 +175,12 @@ def seeds(target: str, shared: bool = True) -> list[bytes]:
     out: list[bytes]
     if target == "ply":
         out = [_ascii_ply(vertices, faces), *written("ply")]
-    elif target in ("obj", "glb"):
+    elif target == "obj":
         out = written(target)
+    elif target == "glb":
+        out = [*written(target), written_several("glb")]
     elif target == "gltf":
-        out = [_as_gltf(glb) for glb in written("glb")]
+        out = [_as_gltf(glb) for glb in [*written("glb"), written_several("glb")]]
         out += [_compressed_gltf(vertices, faces, codec) for codec in ("draco", "meshopt")]
     elif target == "stl":
         out = [_stl(vertices, faces, binary=True), _stl(vertices, faces, binary=False)]
@@ -181,17 +191,19 @@ def seeds(target: str, shared: bool = True) -> list[bytes]:
             encode_level(rich, rich.n_base + 3, "msgpack").content,
             encode_level(plain, plain.n_base, "msgpack").content,
             codecs.encode_mesh(vertices, faces, "msgpack", attributes),
+            encode_level(several, several.n_base + 3, "msgpack").content,
         ]
     elif target == "mtl":
         out = [_MTL, b"newmtl a\nKd 0.5 0.5 0.5\nmap_Kd -s 1 1 1 -clamp on tex.png\n"]
     elif target == "zip":
         obj = b"mtllib m.mtl\nusemtl look\n" + written("obj")[1]
         out = [write_archive({"a/model.obj": obj, "a/m.mtl": _MTL, "a/tex.png": _PNG}),
-               write_archive({"grid.ply": written("ply")[0]})]  # fmt: skip
+               write_archive({"grid.ply": written("ply")[0]}),
+               written_several("zip")]  # fmt: skip
     elif target == "qpm":
-        out = [_saved(plain), _saved(rich)]
+        out = [_saved(plain), _saved(rich), _saved(several)]
     elif target == "stream":
-        out = [stream_input(plain), stream_input(rich)]
+        out = [stream_input(plain), stream_input(rich), stream_input(several)]
     else:
         raise ValueError(f"no seeds for target {target!r}")
     if shared:

@@ -528,7 +528,7 @@ def _read_meshes(gltf: dict, buffers: list[bytes], files: Companions) -> Mesh:
                 if name == "normal" and matrix is not None:
                     values = _turned_normals(values, matrix)
                 if name == "uv":  # each primitive's own material may transform its UVs
-                    values = _texture_transformed(values[:, :2].astype(np.float64), gltf,
+                    values = _texture_transformed(widened(values[:, :2]), gltf,
                                                   primitive)
                 primitive_attributes[name] = values
             attributes.append(primitive_attributes)

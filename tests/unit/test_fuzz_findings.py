@@ -233,3 +233,23 @@ def test_wedge_values_past_float32_at_their_scale_are_refused(uv_qpm):
     body[at : at + 4] = struct.pack("<f", 3e38)
     with pytest.raises(qem_core.CorruptFileError, match="past float32's range"):
         qem_core.load(bytes(body) + struct.pack("<I", zlib.crc32(body)))
+
+
+def test_a_signalling_nan_uv_is_refused_without_a_warning(recwarn):
+    """Found by `python -m fuzz --target glb` (seeded with a two-material GLB): a UV
+    read as float32 and widened for its primitive's texture transform raised numpy's
+    RuntimeWarning, which the fuzzer counts as a finding; it is a NaN, refused."""
+    from tests.unit.test_codec_attributes import _glb_json
+
+    uvs = np.random.default_rng(1).random((4, 2)).astype(np.float32)
+    blob = bytearray(qem_core.codecs.encode_mesh(TETRAHEDRON_V, TETRAHEDRON_F, "glb",
+                                                 {"uv": uvs}))  # fmt: skip
+    gltf = _glb_json(bytes(blob))
+    accessor = gltf["accessors"][gltf["meshes"][0]["primitives"][0]["attributes"]["TEXCOORD_0"]]
+    view = gltf["bufferViews"][accessor["bufferView"]]
+    (json_length,) = struct.unpack_from("<I", blob, 12)
+    at = 20 + json_length + 8 + view.get("byteOffset", 0) + accessor.get("byteOffset", 0)
+    blob[at : at + 4] = struct.pack("<I", 0x7FA00000)  # a signalling NaN
+    with pytest.raises(qem_core.InvalidMeshError, match="(?i)nan|finite"):
+        qem_core.load_mesh(bytes(blob), format="glb")
+    assert [str(w.message) for w in recwarn] == []

@@ -13,9 +13,9 @@ Materials (``mtllib``, ``usemtl``), when the reader is given the files beside th
 are read from the .mtl files (`mtl.py`). When they use one image (``map_Kd``) and the
 faces have UVs, it becomes `Mesh.texture`; without an image, materials of different
 diffuse colours (``Kd``) become the "color" attribute (each vertex takes the colour of a
-material of its faces). Faces using several images keep their UVs but no texture: a
-mesh carries one image. Everything else (``o``, ``g``, ``s``, ``l``, ``p``, comments)
-is ignored.
+material of its faces). Faces using several images (with UVs) give a mesh of several
+materials (`Mesh.materials`, `Mesh.face_materials`), one per look (image and ``Kd``)
+used. Everything else (``o``, ``g``, ``s``, ``l``, ``p``, comments) is ignored.
 
 Lines are found with one regular expression and their numbers parsed by numpy in bulk;
 a Python loop touches each line once, to sort it by keyword.
@@ -26,8 +26,9 @@ dropped), ``vt`` and ``vn`` lines and ``f`` lines ``v``, ``v/vt``, ``v//vn`` or
 corner names its own (seams are kept as written); else the "uv" attribute, one ``vt``
 per vertex. Normals: one ``vn`` per vertex. Values are float32 written with 9
 significant digits, so they read back exactly. A textured mesh written with a
-``material_library`` name starts with ``mtllib <name>.mtl`` and ``usemtl <name>``;
-`obj_companions` gives that .mtl file and the image, to write beside the OBJ.
+``material_library`` name starts with ``mtllib <name>.mtl`` and ``usemtl <name>``; a
+mesh of several materials has its faces in runs, a ``usemtl`` each. `obj_companions`
+gives that .mtl file and the images, to write beside the OBJ.
 """
 
 from __future__ import annotations

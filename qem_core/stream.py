@@ -55,12 +55,14 @@ from ._kernels.stream_coding import (
     SPLIT_CONTEXT,
     TOO_MUCH_WORK,
     WEDGE_WORK_LIMIT,
+    build_corner_sets,
     code_splits,
     decode_connectivity,
     encode_connectivity,
     link_corners,
     plan_frame,
     position_box,
+    undo_splits,
 )
 from ._kernels.wedge_coding import (
     BAD_VALUE,
@@ -330,6 +332,16 @@ def _encode_frame(
     return struct.pack("<I", len(payload)) + payload, contexts
 
 
+class _CornerSets(NamedTuple):
+    """The decoder's corner sets (``stream_coding.build_corner_sets``)."""
+
+    starts: np.ndarray  # (vertex capacity,) int64
+    counts: np.ndarray  # (vertex capacity,) int32
+    caps: np.ndarray  # (vertex capacity,) int32
+    pool: np.ndarray  # int64, the corners of the sets in pool[:used]
+    used: int
+
+
 class _State(NamedTuple):
     """The connectivity both ends keep (``_kernels/stream_coding.py``)."""
 
@@ -555,19 +567,28 @@ class SplitStreamDecoder:
         wedges: QuantisedWedges | None = None,
         grid: Grid | None = None,
     ) -> None:
-        self.quantised = np.asarray(quantised_vertices, np.int64).copy()
+        quantised = np.asarray(quantised_vertices, np.int64).copy()
         faces = np.asarray(faces, np.int64)  # checked before the int32 copy could wrap
         self.grid: Grid | None = grid
         # The frames keep these true; a start that breaks them would be refined into
         # faces naming vertices that come later, or positions off the grid.
-        if self.quantised.ndim != 2 or self.quantised.shape[1] != 3:
-            raise InvalidMeshError(f"quantised vertices must be (n, 3), not {self.quantised.shape}")
+        if quantised.ndim != 2 or quantised.shape[1] != 3:
+            raise InvalidMeshError(f"quantised vertices must be (n, 3), not {quantised.shape}")
         if faces.ndim != 2 or faces.shape[1] != 3:
             raise InvalidMeshError(f"faces must be (m, 3), not {faces.shape}")
-        _check_indices(faces, self.n_vertices, "a face", "vertex")
+        _check_indices(faces, quantised.shape[0], "a face", "vertex")
         if grid is not None:
-            _check_on_grid(self.quantised, (1 << grid.bits) - 1, "a quantised vertex")
-        self.faces = faces.astype(np.int32)
+            _check_on_grid(quantised, (1 << grid.bits) - 1, "a quantised vertex")
+        # The level held, in buffers with room to grow (by doubling: a frame appends to
+        # them in place rather than copying the level), and its corner sets
+        # (``_kernels/stream_coding.py``), built at the first frame and kept up to date by
+        # the frames. ``faces`` and ``quantised`` are copies of the level's rows.
+        self._quantised = quantised
+        self._faces = faces.astype(np.int32)
+        self._n_vertices = quantised.shape[0]
+        self._n_faces = faces.shape[0]
+        self._sets: _CornerSets | None = None
+        self._views: dict[str, np.ndarray] = {}
         self._contexts: np.ndarray | None = None  # as the last frame decoded left them
         self._wedge_contexts: np.ndarray | None = None  # the same, of the wedge fields
         self.wedge_grid: AttributeGrid | None = None
@@ -577,9 +598,9 @@ class SplitStreamDecoder:
             self.wedge_grid = wedges.grid
             self.face_wedges = np.asarray(wedges.face_wedges, np.int32).copy()
             self.quantised_values = np.asarray(wedges.values, np.int64).copy()
-            if self.face_wedges.shape != self.faces.shape:
+            if self.face_wedges.shape != faces.shape:
                 raise InvalidOptionsError(
-                    f"face wedges {self.face_wedges.shape} do not match faces {self.faces.shape}"
+                    f"face wedges {self.face_wedges.shape} do not match faces {faces.shape}"
                 )
             values = self.quantised_values
             if values.ndim != 2 or values.shape[1] != len(wedges.grid.origin):
@@ -604,13 +625,27 @@ class SplitStreamDecoder:
 
     @property
     def n_vertices(self) -> int:
-        return self.quantised.shape[0]
+        return self._n_vertices
+
+    @property
+    def quantised(self) -> np.ndarray:
+        """(n, 3) int64, the level's grid integers (a copy: later frames leave it)."""
+        if "quantised" not in self._views:
+            self._views["quantised"] = self._quantised[: self._n_vertices].copy()
+        return self._views["quantised"]
+
+    @property
+    def faces(self) -> np.ndarray:
+        """(m, 3) int32, the level's faces (a copy: later frames leave it)."""
+        if "faces" not in self._views:
+            self._views["faces"] = self._faces[: self._n_faces].copy()
+        return self._views["faces"]
 
     @property
     def vertices(self) -> np.ndarray:
         if self.grid is None:
             raise InvalidOptionsError("no frame decoded yet: the grid is unknown")
-        return self.grid.dequantise(self.quantised)
+        return self.grid.dequantise(self._quantised[: self._n_vertices])
 
     @property
     def wedge_values(self) -> np.ndarray | None:
@@ -692,10 +727,10 @@ class SplitStreamDecoder:
                     f"lod({self.n_vertices}), inside it: start from lod({n_from}) (a stored "
                     "stream is served from the frame boundary at or below 'from')"
                 )
-            if n_from != self.n_vertices or faces_from != self.faces.shape[0] or k < 0:
+            if n_from != self.n_vertices or faces_from != self._n_faces or k < 0:
                 raise CorruptFileError(
                     f"frame refines {n_from} vertices / {faces_from} faces, the mesh has "
-                    f"{self.n_vertices} / {self.faces.shape[0]}"
+                    f"{self.n_vertices} / {self._n_faces}"
                 )
             coded = np.frombuffer(_bin(body["splits"], None, "splits"), np.uint8)
             _check_frame_size(k, n_new, coded.shape[0])
@@ -719,26 +754,28 @@ class SplitStreamDecoder:
         wedges = None
         if wedge_fields is not None:
             wedges = self._wedge_coder(wedge_fields[0], n_to, faces_from + n_new)
-        state = _state(self.faces, n_to, faces_from + n_new)
-        if state is None:
-            raise CorruptFileError("the mesh being refined has a face naming no vertex")
-        quantised = np.zeros((n_to, 3), np.int64)
-        quantised[:n_from] = self.quantised
+        sets = self._room(n_to, faces_from + n_new)
+        quantised, faces = self._quantised, self._faces
         born = np.zeros((n_new, 3), np.int32)
         counts = np.zeros(k, np.int64)
+        old_positions = np.empty((k, 3), np.int64)
         partial = stop is not None and stop < n_to
         if partial:
             k = stop - n_from
-        status, split_vertex, relabel_counts, relabel_faces = decode_connectivity(
-            state.faces, faces_from, state.head, state.nxt, n_from, k, n_new, coded, quantised,
-            (1 << grid.bits) - 1, contexts, born, counts, partial,
+        status, split_vertex, relabel_counts, relabel_faces, pool, used, started, undo = (
+            decode_connectivity(
+                faces, faces_from, sets.starts, sets.counts, sets.caps, sets.pool, sets.used,
+                n_from, k, n_new, coded, quantised, (1 << grid.bits) - 1, contexts, born,
+                counts, partial, old_positions,
+            )
         )  # fmt: skip
+        sets = self._sets = sets._replace(pool=pool, used=used)
         if status:
+            self._take_back(split_vertex, old_positions, started, undo)
             raise CorruptFileError(f"split frame: {_STATUS[status]}")
         if partial:
             n_to, n_new = stop, int(counts[:k].sum())
-            counts, born, quantised = counts[:k], born[:n_new], quantised[:stop]
-            state = state._replace(faces=state.faces[: faces_from + n_new])
+            counts, born = counts[:k], born[:n_new]
         if wedges is not None:
             run = VertexSplits(
                 n_from, n_to, faces_from, split_vertex, np.zeros((k, 2, 3)), born, counts,
@@ -748,27 +785,76 @@ class SplitStreamDecoder:
             if partial and status == LONG_DATA:
                 status = 0  # the frame's later splits hold the wedge fields left
             if status:
+                self._take_back(split_vertex, old_positions, started, undo)
                 raise CorruptFileError(f"split frame: {_WEDGE_STATUS.get(status, _STATUS[status])}")
             self.face_wedges = wedges.face_wedges
             self.quantised_values = wedges.values
-        self.faces = state.faces
-        self.quantised = quantised
+        self._n_vertices = n_to
+        self._n_faces = faces_from + n_new
+        self._views.clear()
         self.grid = grid
         # After a partial frame no frame follows: a continuing one is refused.
         self._contexts = None if partial else contexts
         if wedge_fields is not None:
             self._wedge_contexts = wedge_fields[1]
 
+    def _room(self, n_vertices: int, n_faces: int) -> _CornerSets:
+        """The corner sets of the level held (built at the first frame), with the level's
+        buffers grown (doubling) to hold ``n_vertices`` vertices and ``n_faces`` faces;
+        the rows past the level are zeros and the sets of the vertices past it empty."""
+        self._faces = _rows_for(self._faces, self._n_faces, n_faces)
+        self._quantised = _rows_for(self._quantised, self._n_vertices, n_vertices)
+        sets = self._sets
+        size = self._quantised.shape[0]
+        if sets is None:
+            sets = _CornerSets(np.zeros(size, np.int64), np.zeros(size, np.int32),
+                               np.zeros(size, np.int32), np.zeros(0, np.int64), 0)  # fmt: skip
+            sets = self._sets = self._corner_sets(sets)
+        elif sets.starts.shape[0] < size:
+            grown = [np.zeros(size, array.dtype) for array in sets[:3]]
+            for new, array in zip(grown, sets[:3], strict=True):
+                new[: array.shape[0]] = array
+            sets = self._sets = sets._replace(starts=grown[0], counts=grown[1], caps=grown[2])
+        return sets
+
+    def _corner_sets(self, sets: _CornerSets) -> _CornerSets:
+        """``sets`` rebuilt from the level's faces."""
+        ok, pool, used = build_corner_sets(
+            self._faces, self._n_faces, self._n_vertices, sets.starts, sets.counts, sets.caps
+        )
+        if not ok:  # the constructor checked the faces, and frames keep them in range
+            raise CorruptFileError("the mesh being refined has a face naming no vertex")
+        return sets._replace(pool=pool, used=used)
+
+    def _take_back(self, split_vertex, old_positions, started, undo) -> None:
+        """Undo what a refused frame changed of the level held (its faces' relabels, its
+        split vertices' positions) and rebuild the corner sets: a refused frame changes
+        nothing."""
+        undo_splits(self._faces, self._quantised, split_vertex, old_positions, started,
+                    undo, undo.shape[0])  # fmt: skip
+        self._sets = self._corner_sets(self._sets)
+
     def _wedge_coder(self, fields: WedgeArrays, n_to: int, face_capacity: int) -> WedgeCoder:
         """The wedge side of the level held (its grid, which the frame's equals), with
         room for what ``fields`` add."""
-        connectivity = _state(self.faces, n_to, face_capacity)
+        connectivity = _state(self._faces[: self._n_faces], n_to, face_capacity)
         if connectivity is None:
             raise CorruptFileError("the mesh being refined has a face naming no vertex")
         capacity = self.quantised_values.shape[0] + int(fields.counts[0].sum())
         return WedgeCoder(
             self.wedge_grid, connectivity, self.face_wedges, self.quantised_values, capacity
         )
+
+
+def _rows_for(buffer: np.ndarray, held: int, need: int) -> np.ndarray:
+    """``buffer`` (its first ``held`` rows kept) with room for ``need`` rows, grown by
+    doubling, the rows from ``held`` to ``need`` zeros."""
+    if buffer.shape[0] < need:
+        grown = np.zeros((max(need, 2 * buffer.shape[0]), *buffer.shape[1:]), buffer.dtype)
+        grown[:held] = buffer[:held]
+        return grown
+    buffer[held:need] = 0
+    return buffer
 
 
 def _check_indices(indices: np.ndarray, n: int, what: str, named: str) -> None:

@@ -418,14 +418,20 @@ def _scratch(head, nxt, s, cs, nb, mark, ys, keys):
     while c != -1:
         degree += 1
         c = nxt[c]
-    if degree < cs.shape[0]:
+    return _room(degree, cs, nb, mark, ys, keys)
+
+
+@numba.njit(cache=True, nogil=True)
+def _room(need, cs, nb, mark, ys, keys):
+    """The buffers of _gather and _set_gather, _predict and _walk, grown for ``need`` corners."""
+    if need < cs.shape[0]:
         return cs, nb, mark, ys, keys
     return (
-        np.empty(2 * degree, np.int64),
-        np.empty(4 * degree, np.int64),
-        np.empty(2 * degree, np.uint8),
-        np.empty(2 * degree, np.int64),
-        np.empty(2 * degree, np.int64),
+        np.empty(2 * need, np.int64),
+        np.empty(4 * need, np.int64),
+        np.empty(2 * need, np.uint8),
+        np.empty(2 * need, np.int64),
+        np.empty(2 * need, np.int64),
     )
 
 
@@ -441,21 +447,34 @@ def _ring_sum(faces, head, nxt, v, other, quantised, total, nb):
     m = 0
     c = head[v]
     while c != -1:
-        f = c // 3
-        j = c - 3 * f  # v's place in the face: the other two are its neighbours
-        for step in range(1, 3):
-            w = faces[f, j + step - 3 if j + step >= 3 else j + step]
-            seen = (w == v) | (w == other)  # v twice: a degenerate face
-            for q in range(m):
-                seen |= nb[q] == w
-            nb[m] = w  # two a corner: nb has room
-            m += not seen
+        m = _ring_corner(faces, c, v, other, nb, m)
         c = nxt[c]
+    _sum_rows(quantised, nb, m, total)
+    return m
+
+
+@_kernel
+def _ring_corner(faces, c, v, other, nb, m):
+    """Add the two other vertices of corner c's face (v's neighbours) to nb[:m] unless
+    there already or ``other``; returns the new length."""
+    f = c // 3
+    j = c - 3 * f  # v's place in the face: the other two are its neighbours
+    for step in range(1, 3):
+        w = faces[f, j + step - 3 if j + step >= 3 else j + step]
+        seen = (w == v) | (w == other)  # v twice: a degenerate face
+        for q in range(m):
+            seen |= nb[q] == w
+        nb[m] = w  # two a corner: nb has room
+        m += not seen
+    return m
+
+
+@_kernel
+def _sum_rows(quantised, nb, m, total):
     total[:] = 0
     for q in range(m):
         for d in range(3):
             total[d] += quantised[nb[q], d]
-    return m
 
 
 @_kernel
@@ -468,6 +487,13 @@ def _span_prediction(faces, head, nxt, s, t, quantised, nb, sums, prediction):
     SPAN_RING_LIMIT. ``sums`` is (2, 3) scratch."""
     a = _ring_sum(faces, head, nxt, t, s, quantised, sums[0], nb)
     b = _ring_sum(faces, head, nxt, s, t, quantised, sums[1], nb)
+    _centroid_span(a, b, sums, prediction)
+
+
+@_kernel
+def _centroid_span(a, b, sums, prediction):
+    """The span prediction from the ring sums (sums[0] of t's a neighbours, sums[1] of
+    s's b): zero when a or b is 0 or over SPAN_RING_LIMIT."""
     prediction[:] = 0
     if a == 0 or b == 0 or a > SPAN_RING_LIMIT or b > SPAN_RING_LIMIT:
         return
@@ -1125,12 +1151,117 @@ def _decode_value(dec, data, probs, slots):
     return magnitude
 
 
+# The decoder's corner sets. The encoder's per-vertex linked lists (head, nxt) cost the
+# decoder a chain of dependent cache misses a split (head[s], then each nxt[c]: the
+# corners of s lie all over a large level) and a sort of cs; the decoder knows no split
+# vertex ahead, so it cannot fetch them early as the encoder does. It keeps each
+# vertex's corners instead in a block of one pool, sorted by corner number: ``starts[v]``
+# the block's place in ``pool``, ``counts[v]`` the corners in it, ``caps[v]`` its room.
+# Sorted for free: a split moves a sorted subset of the corners of s to t (a new vertex)
+# and appends new faces, whose corners come after every corner held; a block that is
+# full moves to the end of the pool with twice the room (the pool grows by doubling).
+# The set of corners of a vertex is the same as the list's, so every decoded symbol is.
+
+
+@numba.njit(cache=True, nogil=True)
+def build_corner_sets(faces, n_faces, n_vertices, starts, counts, caps):
+    """The corner sets (pool, used) of faces[:n_faces] over vertices [0, n_vertices)
+    into starts, counts and caps (>= n_vertices; entries past n_vertices emptied); ok is
+    False (and the sets unusable) if a face names a vertex outside [0, n_vertices)."""
+    counts[:] = 0
+    caps[:] = 0
+    starts[:] = 0
+    for f in range(n_faces):
+        for j in range(3):
+            v = faces[f, j]
+            if v < 0 or v >= n_vertices:
+                return False, np.empty(0, np.int64), 0
+            counts[v] += 1
+    used = 0
+    for v in range(n_vertices):
+        starts[v] = used
+        caps[v] = max(8, counts[v] + 4)  # room for the new faces' corners to come
+        used += caps[v]
+    pool = np.empty(max(16, used + (used >> 2)), np.int64)
+    counts[:] = 0
+    for f in range(n_faces):
+        for j in range(3):
+            v = faces[f, j]
+            pool[starts[v] + counts[v]] = 3 * f + j
+            counts[v] += 1
+    return True, pool, used
+
+
+@_kernel
+def _move_set(pool, starts, caps, counts, v, at, cap):
+    """Move v's full set to pool[at : at + cap] (its room doubled)."""
+    old = starts[v]
+    for q in range(counts[v]):
+        pool[at + q] = pool[old + q]
+    starts[v] = at
+    caps[v] = cap
+
+
+@_kernel
+def _set_ring_sum(faces, starts, counts, pool, v, other, quantised, total, nb):
+    """``_ring_sum`` over v's corner set."""
+    m = 0
+    at = starts[v]
+    for r in range(counts[v]):
+        m = _ring_corner(faces, pool[at + r], v, other, nb, m)
+    _sum_rows(quantised, nb, m, total)
+    return m
+
+
+@_kernel
+def _set_span_prediction(faces, starts, counts, pool, s, t, quantised, nb, sums, prediction):
+    """``_span_prediction`` over the corner sets."""
+    a = _set_ring_sum(faces, starts, counts, pool, t, s, quantised, sums[0], nb)
+    b = _set_ring_sum(faces, starts, counts, pool, s, t, quantised, sums[1], nb)
+    _centroid_span(a, b, sums, prediction)
+
+
+@_kernel
+def _set_gather(faces, starts, counts, pool, s, cs, nb):
+    """``_gather`` from s's corner set (sorted already); returns (nc, nn)."""
+    nc = counts[s]
+    at = starts[s]
+    for q in range(nc):
+        cs[q] = pool[at + q]
+    m = 0
+    for q in range(nc):
+        f = cs[q] // 3
+        for j in range(3):
+            v = faces[f, j]
+            nb[m] = v
+            m += v != s
+    return nc, _distinct_sorted(nb, m)
+
+
+@_kernel
+def undo_splits(faces, quantised, split_vertex, old_positions, n_started, undo, n_undo):
+    """Take back what ``decode_connectivity`` changed of the level held (faces[:faces_from]
+    and quantised[:n_from]): the relabelled corners (undo[:n_undo], pairs of corner and
+    vertex before) and the positions of the split vertices (old_positions[:n_started]),
+    latest first. The corner sets are rebuilt afterwards (``build_corner_sets``)."""
+    for r in range(n_undo - 2, -1, -2):
+        c = undo[r]
+        faces[c // 3, c % 3] = undo[r + 1]
+    for i in range(n_started - 1, -1, -1):
+        s = split_vertex[i]
+        for d in range(3):
+            quantised[s, d] = old_positions[i, d]
+
+
 @numba.njit(cache=True, nogil=True)
 def decode_connectivity(
     faces,
     faces_from,
-    head,
-    nxt,
+    starts,
+    counts,
+    caps,
+    pool,
+    used,
     n_from,
     n_splits,
     n_new_faces,
@@ -1141,22 +1272,29 @@ def decode_connectivity(
     born_faces,
     face_counts,
     partial,
+    old_positions,
 ):
     """Inverse of ``encode_connectivity`` + ``code_splits``: decodes n_splits splits from
     the range-coded ``data`` (uint8) with the contexts ``probs`` (fresh, or as the
-    previous frame of the stream left them: they are updated) and advances the state
-    (faces must have room for n_new_faces more faces, head and quantised for the new
-    vertices). Every decoded position must lie on the grid, in [0, q_max] = [0, 2^bits -
-    1] per axis (BAD_POSITION otherwise: a decoder holding 32-bit integers, as the
-    viewer's, must not wrap a value that this one refuses). What the wedge side needs of
-    the splits goes to born_faces (>= n_new_faces, 3): the new faces as born, before
-    later splits relabel them, and face_counts (>= n_splits,): each split's new faces.
+    previous frame of the stream left them: they are updated) and advances the state:
+    the faces, the corner sets (starts, counts, caps, pool[:used]: ``build_corner_sets``)
+    and the positions (faces must have room for n_new_faces more faces, starts, counts,
+    caps and quantised for the new vertices, with the new vertices' sets empty). Every
+    decoded position must lie on the grid, in [0, q_max] = [0, 2^bits - 1] per axis
+    (BAD_POSITION otherwise: a decoder holding 32-bit integers, as the viewer's, must
+    not wrap a value that this one refuses). What the wedge side needs of the splits
+    goes to born_faces (>= n_new_faces, 3): the new faces as born, before later splits
+    relabel them, and face_counts (>= n_splits,): each split's new faces.
+    old_positions (>= n_splits, 3) receives the position of each split vertex before its
+    split, for ``undo_splits``.
 
-    Returns (status, split_vertex, relabel_counts, relabel_faces): status 0 when the
-    splits used every byte of data, exactly n_new_faces faces and only indices in range,
-    else a status code (the state is then partly advanced and must be dropped). With
-    ``partial`` the n_splits splits are the first of a frame that holds more (a client
-    that stops inside a frame): bytes and faces may remain, n_new_faces is a bound.
+    Returns (status, split_vertex, relabel_counts, relabel_faces, pool, used, n_started,
+    undo): status 0 when the splits used every byte of data, exactly n_new_faces faces
+    and only indices in range, else a status code (the state is then partly advanced:
+    ``undo_splits`` with n_started splits and the pairs in undo takes faces and
+    positions back, and the corner sets must be rebuilt). With ``partial`` the n_splits
+    splits are the first of a frame that holds more (a client that stops inside a
+    frame): bytes and faces may remain, n_new_faces is a bound.
     """
     k = n_splits
     dec = rc.start_decoder(data, 0)
@@ -1164,36 +1302,48 @@ def decode_connectivity(
     split_vertex = np.zeros(k, np.int32)
     relabel_counts = np.zeros(k, np.int64)
     relabel_faces = np.empty(max(16, 2 * k), np.int32)
+    undo = np.empty(max(16, 4 * k), np.int64)
     cs, nb, mark, ys, keys, sums, vectors, slots = _scratch_start()
     prediction, work, binormal, edge, mid, axes = vectors
     corner = np.zeros(3, np.int64)
     n_relabel = 0
+    n_undo = 0
+    n_started = 0
     corners_walked = 0  # against FRAME_WORK_LIMIT
     face = faces_from
     face_end = faces_from + n_new_faces
+    status = 0
     for i in range(k):
         if dec[rc.BROKEN]:
-            return SHORT_DATA, split_vertex, relabel_counts, relabel_faces[:n_relabel]
+            status = SHORT_DATA
+            break
         t = n_from + i
         if t < 1:
-            return BAD_VERTEX, split_vertex, relabel_counts, relabel_faces[:n_relabel]
+            status = BAD_VERTEX
+            break
         bucket = rc.decode_tree(dec, data, probs, _S_BUCKET_SLOTS, _S_BUCKET_BITS)
         lo = (bucket * t + S_BUCKETS - 1) // S_BUCKETS
         hi = ((bucket + 1) * t + S_BUCKETS - 1) // S_BUCKETS
         if hi <= lo:
-            return BAD_VERTEX, split_vertex, relabel_counts, relabel_faces[:n_relabel]
+            status = BAD_VERTEX
+            break
         s = lo + rc.decode_uniform(dec, data, probs, _S_SLOTS, hi - lo)
         split_vertex[i] = s
-        cs, nb, mark, ys, keys = _scratch(head, nxt, s, cs, nb, mark, ys, keys)
-        nc, nn = _gather(faces, head, nxt, s, cs, nb)
+        for d in range(3):
+            old_positions[i, d] = quantised[s, d]
+        n_started = i + 1
+        cs, nb, mark, ys, keys = _room(counts[s], cs, nb, mark, ys, keys)
+        nc, nn = _set_gather(faces, starts, counts, pool, s, cs, nb)
         corners_walked += nc
         if i > 0 and corners_walked > FRAME_WORK_LIMIT:
-            return TOO_MUCH_WORK, split_vertex, relabel_counts, relabel_faces[:n_relabel]
+            status = TOO_MUCH_WORK
+            break
         keys[nc] = -1  # not keyed for this split yet
         _ring_shape(faces, quantised, s, cs, nc, nb, nn, context, work)
         count = rc.decode_integer(dec, data, probs, _COUNT_SLOTS, False)
         if count > face_end - face:
-            return BAD_COUNT, split_vertex, relabel_counts, relabel_faces[:n_relabel]
+            status = BAD_COUNT
+            break
         face_counts[i] = count
         xl = -1
         xr = -1
@@ -1208,8 +1358,11 @@ def decode_connectivity(
                 for r in range(3):
                     b = rc.decode_integer(dec, data, probs, _BACK_SLOTS, False)
                     if b > t:
-                        return BAD_BACK, split_vertex, relabel_counts, relabel_faces[:n_relabel]
+                        status = BAD_BACK
+                        break
                     corner[r] = t - b
+                if status:
+                    break
             elif code < EXPLICIT:
                 forward = code < 3
                 x = -1
@@ -1221,12 +1374,8 @@ def decode_connectivity(
                     if walk_length > 0:
                         step = rc.decode_integer(dec, data, probs, _step_row(walk_length), False)
                         if step > walk_length:
-                            return (
-                                BAD_THIRD,
-                                split_vertex,
-                                relabel_counts,
-                                relabel_faces[:n_relabel],
-                            )
+                            status = BAD_THIRD
+                            break
                         if step < walk_length:
                             x = ys[step]
                 if not (xl >= 0 or xr >= 0):
@@ -1236,13 +1385,15 @@ def decode_connectivity(
                 elif rc.decode_bit(dec, data, probs, _ESCAPE_SLOT):
                     b = rc.decode_integer(dec, data, probs, _BACK_SLOTS, False)
                     if b > t:
-                        return BAD_BACK, split_vertex, relabel_counts, relabel_faces[:n_relabel]
+                        status = BAD_BACK
+                        break
                     x = t - b
                 elif nn > 0:
                     n_index = min(nn, ESCAPE)
                     x = nb[rc.decode_uniform(dec, data, probs, _third_row(n_index), n_index)]
                 else:
-                    return BAD_THIRD, split_vertex, relabel_counts, relabel_faces[:n_relabel]
+                    status = BAD_THIRD
+                    break
                 r = code % 3
                 corner[r] = s if forward else t
                 corner[(r + 1) % 3] = t if forward else s
@@ -1252,33 +1403,94 @@ def decode_connectivity(
                 if not forward and xr < 0:
                     xr = x
             else:
-                return BAD_CODE, split_vertex, relabel_counts, relabel_faces[:n_relabel]
-            # Written now (the state's lists get them after the relabels).
+                status = BAD_CODE
+                break
+            # Written now (the corner sets get them after the relabels).
             for j in range(3):
                 faces[face, j] = corner[j]
                 born_faces[face - faces_from, j] = corner[j]
             face += 1
+        if status:
+            break
         _predict(faces, s, cs, nc, xl, xr, mark, ys, keys)
         if nc and rc.decode_bit(dec, data, probs, _MASK_SLOTS):
             for q in range(nc):
                 mark[q] = rc.decode_bit(dec, data, probs, _MASK_SLOTS + 1 + mark[q])
         relabel_faces = _grow(relabel_faces, n_relabel + nc)
+        undo = _grow(undo, n_undo + 2 * nc)
+        moved = 0
         for q in range(nc):
             if mark[q]:
                 f = cs[q] // 3
-                if not _relabel(faces, head, nxt, f, s, t):
-                    return NO_CORNER, split_vertex, relabel_counts, relabel_faces[:n_relabel]
+                hit = -1
+                for j in range(3):
+                    if faces[f, j] == s:
+                        hit = 3 * f + j
+                        faces[f, j] = t
+                        break
+                if hit < 0:
+                    status = NO_CORNER
+                    break
+                undo[n_undo] = hit
+                undo[n_undo + 1] = s
+                n_undo += 2
                 relabel_faces[n_relabel] = f
                 n_relabel += 1
-                relabel_counts[i] += 1
+                moved += 1
+                # hit is a corner of s not moved yet, at or before cs[q] in its face:
+                # at or before q in cs (sorted); flagged as moved
+                h = q
+                while h > 0 and cs[h] != hit:
+                    h -= 1
+                if cs[h] != hit:
+                    status = NO_CORNER
+                    break
+                cs[h] = -1 - hit
+        if status:
+            break
+        relabel_counts[i] = moved
+        if moved:
+            # s keeps its other corners in order; t (empty) takes the moved ones, sorted
+            # as cs is.
+            at = starts[s]
+            kept = 0
+            for q in range(nc):
+                c = cs[q]
+                if c >= 0:
+                    pool[at + kept] = c
+                    kept += 1
+            counts[s] = kept
+            # t's set: empty, given room for the moved corners and those to come
+            cap = max(8, 2 * moved)
+            if used + cap > pool.shape[0]:
+                pool = _grow(pool, used + cap)
+            starts[t] = used
+            caps[t] = cap
+            used += cap
+            at = used - cap
+            for q in range(nc):
+                c = cs[q]
+                if c < 0:
+                    pool[at] = -1 - c
+                    at += 1
+            counts[t] = moved
         for f in range(first_new, face):
             for j in range(3):
+                # corner 3 f + j comes after every corner of v: appended
                 v = faces[f, j]
-                corner_id = 3 * f + j
-                nxt[corner_id] = head[v]
-                head[v] = corner_id
-        nb = _ring_room(head, nxt, s, t, nb)
-        _span_prediction(faces, head, nxt, s, t, quantised, nb, sums, prediction)
+                n = counts[v]
+                if n == caps[v]:
+                    cap = max(8, 2 * n)
+                    if used + cap > pool.shape[0]:
+                        pool = _grow(pool, used + cap)
+                    _move_set(pool, starts, caps, counts, v, used, cap)
+                    used += cap
+                pool[starts[v] + n] = 3 * f + j
+                counts[v] = n + 1
+        need = 4 * (counts[s] + counts[t])  # twice the corners, as _ring_room
+        if need > nb.shape[0]:
+            nb = np.empty(need, np.int64)
+        _set_span_prediction(faces, starts, counts, pool, s, t, quantised, nb, sums, prediction)
         plane = _span_axes(context, axes)
         for n_known in range(3):
             against = _span_slots(context, plane, axes, n_known, edge, prediction, slots)
@@ -1307,15 +1519,26 @@ def decode_connectivity(
                 # a + b = 2 (old + mid) + (e & 1) and b - a = e
                 a = (2 * (old + mid[d]) + (e & 1) - e) >> 1
             if a < 0 or a > q_max or a + e < 0 or a + e > q_max:
-                return BAD_POSITION, split_vertex, relabel_counts, relabel_faces[:n_relabel]
+                status = BAD_POSITION
+                break
             quantised[s, d] = a
             quantised[t, d] = a + e
-    if dec[rc.BROKEN]:
-        return SHORT_DATA, split_vertex, relabel_counts, relabel_faces[:n_relabel]
-    if partial:
-        return 0, split_vertex, relabel_counts, relabel_faces[:n_relabel]
-    if dec[rc.POSITION] != data.shape[0]:
-        return LONG_DATA, split_vertex, relabel_counts, relabel_faces[:n_relabel]
-    if face != face_end:
-        return BAD_COUNT, split_vertex, relabel_counts, relabel_faces[:n_relabel]
-    return 0, split_vertex, relabel_counts, relabel_faces[:n_relabel]
+        if status:
+            break
+    if status == 0:
+        if dec[rc.BROKEN]:
+            status = SHORT_DATA
+        elif not partial and dec[rc.POSITION] != data.shape[0]:
+            status = LONG_DATA
+        elif not partial and face != face_end:
+            status = BAD_COUNT
+    return (
+        status,
+        split_vertex,
+        relabel_counts,
+        relabel_faces[:n_relabel],
+        pool,
+        used,
+        n_started,
+        undo[:n_undo],
+    )

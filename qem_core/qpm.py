@@ -319,7 +319,7 @@ def _materials(images: np.ndarray | None, entries: object) -> list[Material] | N
     """The materials a version 3 file lists, checked; None for a file without them."""
     if images is None and entries is None:
         return None
-    if images is None or not isinstance(entries, list):
+    if (images is None) != (entries is None):
         raise CorruptFileError(".qpm has material images without their list, or the reverse")
 
     def image_of(i: int, entry: dict) -> bytes | None:

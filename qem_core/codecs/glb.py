@@ -440,8 +440,8 @@ _SHARED_ALLOWANCE = 1 << 20
 def _read_meshes(gltf: dict, buffers: list[bytes], files: Companions) -> Mesh:
     positions, faces, attributes, offset = [], [], [], 0
     first_primitive = None
-    n_primitives = 0
     looks: dict[tuple, int] = {}  # (image, colour) -> the material made of it
+    material_of: dict[str, Material] = {}  # a primitive's "material" -> its look
     materials: list[Material] = []
     face_looks: list[np.ndarray] = []
     # Primitives may share accessors, and each is copied: a 300 KB file whose thousands
@@ -460,26 +460,25 @@ def _read_meshes(gltf: dict, buffers: list[bytes], files: Companions) -> Mesh:
                 continue  # points and lines carry no surface
             if first_primitive is None:
                 first_primitive = primitive
-            n_primitives += 1
             names = primitive.get("attributes")
             if not isinstance(names, dict) or "POSITION" not in names:
                 raise MeshFormatError(
                     f"GLB mesh {mesh_index} has a triangle primitive without a POSITION "
                     "attribute: glTF 2.0 requires one"
                 )
-            material = _material(gltf, buffers, primitive, files)
+            # Each material's image read once; repr keys a hostile non-index too, which
+            # _material refuses by name.
+            key = repr(primitive.get("material"))
+            if key not in material_of:
+                material_of[key] = _material(gltf, buffers, primitive, files)
+            material = material_of[key]
             look = (material.texture, material.color)
             if look not in looks:
                 looks[look] = len(materials)
                 materials.append(material)
             shared = (instance, json.dumps(names, sort_keys=True), _uv_transform(gltf, primitive))
             if "extensions" not in primitive and shared in vertex_sets and "indices" in primitive:
-                indices = _accessor(gltf, buffers, primitive["indices"], "indices", False)
-                indices = indices.reshape(-1).astype(np.int64)
-                if indices.size % 3:
-                    raise MeshFormatError(
-                        f"GLB triangle primitive has {indices.size} indices, not a multiple of 3"
-                    )
+                indices = _triangle_indices(gltf, buffers, primitive, None)
                 index_budget -= indices.size
                 if index_budget < 0:
                     raise MeshFormatError(
@@ -497,15 +496,7 @@ def _read_meshes(gltf: dict, buffers: list[bytes], files: Companions) -> Mesh:
                 continue
             # Normalised integer positions are KHR_mesh_quantization's (its node scales them).
             vertices = _accessor(gltf, buffers, names["POSITION"], "POSITION", normalized=True)
-            if "indices" in primitive:
-                indices = _accessor(gltf, buffers, primitive["indices"], "indices", False)
-                indices = indices.reshape(-1).astype(np.int64)
-            else:
-                indices = np.arange(vertices.shape[0], dtype=np.int64)
-            if indices.size % 3:
-                raise MeshFormatError(
-                    f"GLB triangle primitive has {indices.size} indices, not a multiple of 3"
-                )
+            indices = _triangle_indices(gltf, buffers, primitive, vertices.shape[0])
             vertex_budget -= vertices.shape[0]
             index_budget -= indices.size
             if vertex_budget < 0 or index_budget < 0:
@@ -805,6 +796,22 @@ def _formats_named(formats: tuple[tuple[int, bool | None], ...]) -> str:
         name = _COMPONENT_NAMES[component]
         names.append(f"normalized {name}" if modes == {True} else name)
     return ", ".join(names)
+
+
+def _triangle_indices(gltf: dict, buffers: list[bytes], primitive: dict,
+                      n_vertices: int | None) -> np.ndarray:
+    """A triangle primitive's indices as int64, a multiple of 3 (without an accessor,
+    its ``n_vertices`` vertices in order)."""
+    if "indices" in primitive:
+        indices = _accessor(gltf, buffers, primitive["indices"], "indices", False)
+        indices = indices.reshape(-1).astype(np.int64)
+    else:
+        indices = np.arange(n_vertices, dtype=np.int64)
+    if indices.size % 3:
+        raise MeshFormatError(
+            f"GLB triangle primitive has {indices.size} indices, not a multiple of 3"
+        )
+    return indices
 
 
 def _uv_transform(gltf: dict, primitive: dict) -> str:

@@ -17,7 +17,7 @@ from ._kernels.contract import (
 )
 from ._kernels.runs import gather_runs, merge_by_running_max
 
-__all__ = ["make_record", "grown", "with_room_for", "append_merged"]
+__all__ = ["make_record", "grown", "with_room_for", "append_merged", "permuted"]
 
 
 def make_record(n: int, m: int, n_wedges: int = 0, k: int = 0) -> Record:
@@ -129,3 +129,53 @@ def append_merged(record: Record, parts: Sequence[Record]) -> Record:
     record.counts[1] = killed0 + n_killed
     record.counts[2] = relabel0 + n_relabel
     return record
+
+
+def permuted(record: Record, order: np.ndarray) -> Record:
+    """The record's first ``len(order)`` contractions in ``order`` (new position -> old
+    contraction), each with its own runs; a record of just those, sized to fit. Only
+    for an order that keeps each contraction after those it relies on (sweeps.py)."""
+    j_count = order.shape[0]
+
+    def rows_of_runs(ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The rows of the runs ending at ``ends`` in ``order``, and the new ends."""
+        ends = ends[:j_count]
+        total = int(ends[-1]) if j_count else 0
+        rows = np.empty(total, np.int64)
+        gather_runs(np.arange(total, dtype=np.int64), ends, order, rows)
+        return rows, np.cumsum(np.diff(ends, prepend=0)[order]).astype(np.int64)
+
+    killed_rows, killed_end = rows_of_runs(record.killed_end)
+    relabel_rows, relabel_end = rows_of_runs(record.relabel_end)
+    wedges = record.wedge_log_end.shape[0] > 0
+    if wedges:
+        log_rows, wedge_log_end = rows_of_runs(record.wedge_log_end)
+        relabel_wedge_rows, wedge_relabel_end = rows_of_runs(record.wedge_relabel_end)
+    else:
+        log_rows = relabel_wedge_rows = np.zeros(0, np.int64)
+        wedge_log_end = wedge_relabel_end = record.wedge_log_end
+    counts = record.counts.copy()
+    counts[:] = (
+        j_count,
+        killed_rows.size,
+        relabel_rows.size,
+        log_rows.size,
+        relabel_wedge_rows.size,
+    )
+    return Record(
+        a=record.a[order],
+        b=record.b[order],
+        position_a=record.position_a[order],
+        position_b=record.position_b[order],
+        cost=record.cost[order],
+        killed_end=killed_end,
+        killed=record.killed[killed_rows],
+        relabel_end=relabel_end,
+        relabel=record.relabel[relabel_rows],
+        wedge_log_end=wedge_log_end,
+        wedge_log=record.wedge_log[log_rows],
+        wedge_log_values=record.wedge_log_values[log_rows],
+        wedge_relabel_end=wedge_relabel_end,
+        wedge_relabel=record.wedge_relabel[relabel_wedge_rows],
+        counts=counts,
+    )

@@ -58,13 +58,14 @@ from ._kernels.quadrics import QUADRIC_SIZE, fill_face_quadrics
 from ._kernels.runs import gather_runs
 from ._kernels.scale import ldexp_into
 from ._kernels.setup import fill_border_quadrics, fill_heap, sum_quadrics
+from ._kernels.sweeps import MIN_WINDOW, WINDOW_SHARE, split_dependencies, sweep_order
 from .attributes import Wedges, check_options_for_wedges, make_wedges
 from .mesh import Mesh
 from .options import ERROR_MODE_CODES, WEIGHTING_AREA_EXPONENTS, WEIGHTING_CODES, BuildOptions
 from .page_advice import without_huge_page_advice
 from .prepare import MeshEdges, prepare_mesh_and_edges, unique_edges
 from .progressive import ProgressiveMesh
-from .record import grown, make_record, with_room_for
+from .record import grown, make_record, permuted, with_room_for
 from .rounds import (
     COMPACTED_ROUNDS_MIN_VERTICES,
     RoundsState,
@@ -620,6 +621,7 @@ def _build(vertices, faces, options: BuildOptions, progress: ProgressCallback | 
     }
     if wedges is not None:
         metadata["attributes"] = wedges.layout.to_dict()
+    run = _in_sweep_order(run)  # the greedy order's record freed once reordered
     pm, level_of_slot = _assemble(run, metadata)
     # For each input vertex, its level number (-1 if dropped by preparation).
     pm.vertex_map = np.where(
@@ -628,6 +630,26 @@ def _build(vertices, faces, options: BuildOptions, progress: ProgressCallback | 
     if progress is not None:
         progress(1.0)
     return pm
+
+
+def _in_sweep_order(run: ContractionRun) -> ContractionRun:
+    """The run with its contractions reordered so that the refinement takes its splits
+    in sweeps of ascending split vertex, window by window (`_kernels/sweeps.py`): the same
+    levels at the windows' ends, a stream that codes each split's vertex in a few bits."""
+    record, cx, j_count = run
+    if j_count < 2:
+        return run
+    pred_offsets, preds = split_dependencies(
+        cx.faces.copy(), record.a, record.b, record.killed, record.killed_end,
+        record.relabel, record.relabel_end, j_count, cx.vertices.shape[0],
+    )  # fmt: skip
+    level_of_slot = np.full(cx.vertices.shape[0], -1, np.int32)
+    n_base = number_slots(cx.vertex_alive, record.b, 0, level_of_slot)
+    order = sweep_order(pred_offsets, preds, record.a[:j_count], record.b[:j_count],
+                        level_of_slot, n_base, WINDOW_SHARE, MIN_WINDOW)
+    # Split k undoes contraction J-1-k: the new contraction i is split J-1-i.
+    contractions = (j_count - 1 - order[::-1]).astype(np.int64)
+    return run._replace(record=permuted(record, contractions))
 
 
 def _level_of_slot(run: ContractionRun) -> np.ndarray:

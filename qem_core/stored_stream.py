@@ -42,7 +42,14 @@ from .stream import (
     plan_frames,
 )
 
-__all__ = ["INDEX_FORMAT", "INDEX_VERSION", "StreamIndex", "encode_stored_stream", "index_stream"]
+__all__ = [
+    "INDEX_FORMAT",
+    "INDEX_VERSION",
+    "OutdatedStreamError",
+    "StreamIndex",
+    "encode_stored_stream",
+    "index_stream",
+]
 
 INDEX_FORMAT = "qem-split-index"
 INDEX_VERSION = 1
@@ -165,12 +172,22 @@ class StreamIndex:
             raise CorruptFileError("split stream index: its counts or offsets do not grow")
         if offsets[0] != 0 or offsets[-1] != size or crc >= 1 << 32:
             raise CorruptFileError("split stream index: its offsets do not span the stream")
+        if stream_version < STREAM_VERSION:
+            raise OutdatedStreamError(
+                f"split stream index: frames of version {stream_version}, this reads "
+                f"{STREAM_VERSION} (encode the stream again)"
+            )
         if stream_version != STREAM_VERSION:
             raise CorruptFileError(
                 f"split stream index: frames of version {stream_version}, this reads "
                 f"{STREAM_VERSION}"
             )
         return cls(vertices, faces, offsets, crc, stream_version, bits)
+
+
+class OutdatedStreamError(CorruptFileError):
+    """A stored stream of an older frame version: sound, but no longer read; the same
+    progressive mesh encodes it again in this version."""
 
 
 def _is_count(value) -> bool:

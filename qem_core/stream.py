@@ -4,7 +4,7 @@ against the mesh being refined, range-coded.
 A stream refining lod(n1) to lod(n2) is a sequence of frames; each frame is
 
     uint32 little-endian length L, then L bytes: one msgpack map (format "qem-splits",
-    version 3) followed by the CRC-32 of its bytes
+    version 4) followed by the CRC-32 of its bytes
 
 Positions live on a grid of 2^bits - 1 steps per axis over the box of every position the
 progressive mesh uses (``grid`` = [origin xyz, step xyz], in a stream's first frame);
@@ -95,7 +95,7 @@ __all__ = [
 ]
 
 MEDIA_TYPE = "application/x-qem-splits"
-STREAM_VERSION = 3
+STREAM_VERSION = 4
 # Frames grow from FIRST_FRAME_SPLITS to SPLITS_PER_FRAME splits (doubling), so that a
 # viewer refines early in the stream: it gets a first level after a small frame.
 FIRST_FRAME_SPLITS = 512

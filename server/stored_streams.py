@@ -6,9 +6,9 @@ answered with the run of stored frames covering it, never by encoding. Each stre
 read from the blob store once per process, its length and CRC-32 checked against its
 index, and kept in memory within a byte budget.
 
-A mesh built before streams were stored (or whose stream blobs went missing) gets its
-stream made once, by the first request that needs it (concurrent requests wait for that
-one), and stored: never per request.
+A mesh built before streams were stored (or whose stream blobs went missing, or were
+stored in an older frame version) gets its stream made once, by the first request that
+needs it (concurrent requests wait for that one), and stored: never per request.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from qem_core import CorruptFileError
-from qem_core.stored_stream import StreamIndex, encode_stored_stream
+from qem_core.stored_stream import OutdatedStreamError, StreamIndex, encode_stored_stream
 
 from .lod_cache import LodCache
 from .lru import CacheStats, LruCache
@@ -94,6 +94,8 @@ class StreamCache:
         try:
             index = StreamIndex.from_json(index_bytes)
             index.check(data)
+        except OutdatedStreamError:
+            return self._make(record, qpm)  # stored by an older version: made again once
         except CorruptFileError as error:
             raise CorruptFileError(
                 f"the stored split stream of mesh {record.id} is damaged ({error}); its "
@@ -107,7 +109,7 @@ class StreamCache:
         self.made += 1
         log.info(
             "made the split stream of mesh %s once (%d bytes, %d frames, %.1f s): it was "
-            "built before streams were stored, or its stream was missing",
+            "built before streams were stored, or its stream was missing or outdated",
             record.id,
             stream.index.size,
             stream.index.n_frames,

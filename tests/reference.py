@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from qem_core._kernels.sweeps import window_ends
 from qem_core.options import WEIGHTING_AREA_EXPONENTS
 
 SHARED_MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
@@ -254,3 +255,15 @@ def assert_decoded_level(decoder, pm, n: int) -> None:
     assert decoder.n_vertices == n
     np.testing.assert_array_equal(decoder.faces, faces)
     np.testing.assert_array_equal(decoder.quantised, grid_for(pm).quantise(vertices))
+
+
+def greedy_levels(pm) -> list[int]:
+    """The levels of ``pm`` that are the greedy run's stopped there: the base and the
+    ends of the sweep order's windows (qem_core/_kernels/sweeps.py); a level inside a
+    window holds another subset of the window's splits."""
+    return [pm.n_base, *window_ends(pm.n_base, pm.n_full - pm.n_base)]
+
+
+def greedy_level(pm, n: int) -> int:
+    """The greedy level nearest to ``n`` at or below it (the base at least)."""
+    return max(level for level in greedy_levels(pm) if level <= max(n, pm.n_base))

@@ -1,4 +1,4 @@
-"""Split-stream (version 3) coding kernels: connectivity relative to the split vertex's
+"""Split-stream (version 4) coding kernels: connectivity relative to the split vertex's
 neighbourhood, positions relative to the split vertex's old position in a frame fitted
 to its ring, the symbols range-coded (``code_splits`` / ``decode_connectivity``,
 contexts below the constants). docs/formats.md, section 2, gives every step.
@@ -14,7 +14,10 @@ Encoder and decoder keep the same state, the mesh at the level being refined:
 For split i (s = split_vertex[i], t = n_from + i), with the corners of s sorted by corner
 index (``cs``) and the distinct other vertices of s's faces sorted (``nb``):
 
-- s is coded as a bucket of [0, t) (``S_BUCKETS`` of them) and its place in the bucket;
+- s is coded against the s of the frame's previous split (-1 for its first): whether it
+  lies ahead of it, then the gap to it (the build takes the splits in sweeps of
+  ascending s, ``sweeps.py``), else as a bucket of [0, previous s] (``S_BUCKETS`` of
+  them) and its place in the bucket;
 - each new face gets a code 0..6 (0-2: (s, t, x) rotated by the code; 3-5: (t, s, x)
   rotated; 6 explicit). The third corner x of the first face of code 0-5 (the first
   *wing*) is its index in ``nb`` (``ESCAPE`` = 255 when x is not there or the index is
@@ -48,8 +51,9 @@ EXPLICIT = 6
 # Rings larger than this get no span prediction (keeps every product below 2^53, so a
 # JavaScript decoder computes the same floors in float64).
 SPAN_RING_LIMIT = 64
-# s in [0, t) is coded as its bucket floor(S_BUCKETS * s / t) (a tree of contexts: the
-# splits favour older vertices) then its offset in the bucket.
+# An s not ahead of the previous one, in [0, n) for n = previous s + 1, is coded as its
+# bucket floor(S_BUCKETS * s / n) (a tree of contexts: the splits favour older vertices)
+# then its offset in the bucket.
 S_BUCKETS = 32
 _S_BUCKET_BITS = 5
 # Coordinate differences and normals are shifted right to these many bits before they
@@ -87,7 +91,7 @@ FRAME_WORK_LIMIT = 1 << 21
 # of one vertex's faces cannot stall a decoder.
 WEDGE_WORK_LIMIT = 1 << 22
 
-# Version 3 codes the fields with the adaptive range coder (range_coder.py), split by
+# Version 3 and on code the fields with the adaptive range coder (range_coder.py), split by
 # split in the order the decoder needs them. The contexts of each field, as slots of one
 # probability array (a block per field, ``_ROWS`` blocks where a context picks a row):
 _ROWS = 21  # magnitude classes 0..20: bit lengths of a ring spread or an edge
@@ -95,7 +99,9 @@ _STEP_ROWS = 9  # walk lengths 0..8 (8: 8 or more)
 _IS = rc.INTEGER_SLOTS
 _S_BUCKET_SLOTS = 0  # bucket of s: 5-bit tree
 _S_SLOTS = _S_BUCKET_SLOTS + S_BUCKETS  # s in its bucket: uniform, bit-position contexts
-_COUNT_SLOTS = _S_SLOTS + rc.UNIFORM_SLOTS  # new faces of the split: integer
+_S_AHEAD_SLOTS = _S_SLOTS + rc.UNIFORM_SLOTS  # s ahead of the previous one? by the last
+_S_GAP_SLOTS = _S_AHEAD_SLOTS + 2  # s - previous s - 1: integer
+_COUNT_SLOTS = _S_GAP_SLOTS + _IS  # new faces of the split: integer
 _CODE_SLOTS = _COUNT_SLOTS + _IS  # face code: 3-bit tree per previous code
 _ESCAPE_SLOT = _CODE_SLOTS + 8 * 8  # third corner escaped?
 _THIRD_SLOTS = _ESCAPE_SLOT + 1  # its index in nb: uniform, a row per min(nn, 16)
@@ -1033,12 +1039,20 @@ def encode_connectivity(
 
 
 @_kernel
-def _code_s(enc, out, probs, s, t):
-    bucket = (S_BUCKETS * s) // t
+def _code_s(enc, out, probs, s, previous, was_ahead):
+    """s against the previous split's (-1: none); returns whether it was ahead of it."""
+    ahead = 1 if s > previous else 0
+    rc.encode_bit(enc, out, probs, _S_AHEAD_SLOTS + was_ahead, ahead)
+    if ahead:
+        rc.encode_integer(enc, out, probs, _S_GAP_SLOTS, s - previous - 1, False)
+        return 1
+    n = previous + 1
+    bucket = (S_BUCKETS * s) // n
     rc.encode_tree(enc, out, probs, _S_BUCKET_SLOTS, _S_BUCKET_BITS, bucket)
-    lo = (bucket * t + S_BUCKETS - 1) // S_BUCKETS
-    hi = ((bucket + 1) * t + S_BUCKETS - 1) // S_BUCKETS
+    lo = (bucket * n + S_BUCKETS - 1) // S_BUCKETS
+    hi = ((bucket + 1) * n + S_BUCKETS - 1) // S_BUCKETS
     rc.encode_uniform(enc, out, probs, _S_SLOTS, s - lo, hi - lo)
+    return 0
 
 
 @_kernel
@@ -1071,11 +1085,14 @@ def code_splits(
     at_third = 0
     at_back = 0
     at_mask = 0
+    previous_s = -1
+    was_ahead = 0
     for i in range(split_back.shape[0]):
         t = n_from + i
         context = split_context[i]
         if fields & FIELD_SPLIT_BACK:
-            _code_s(enc, out, probs, t - split_back[i], t)
+            was_ahead = _code_s(enc, out, probs, t - split_back[i], previous_s, was_ahead)
+        previous_s = t - split_back[i]
         count = new_face_counts[i]
         if fields & FIELD_FACE_COUNTS:
             bad |= rc.encode_integer(enc, out, probs, _COUNT_SLOTS, count, False)
@@ -1309,6 +1326,8 @@ def decode_connectivity(
     n_relabel = 0
     n_undo = 0
     n_started = 0
+    previous_s = -1  # the previous split's s
+    was_ahead = 0
     corners_walked = 0  # against FRAME_WORK_LIMIT
     face = faces_from
     face_end = faces_from + n_new_faces
@@ -1321,13 +1340,23 @@ def decode_connectivity(
         if t < 1:
             status = BAD_VERTEX
             break
-        bucket = rc.decode_tree(dec, data, probs, _S_BUCKET_SLOTS, _S_BUCKET_BITS)
-        lo = (bucket * t + S_BUCKETS - 1) // S_BUCKETS
-        hi = ((bucket + 1) * t + S_BUCKETS - 1) // S_BUCKETS
-        if hi <= lo:
-            status = BAD_VERTEX
-            break
-        s = lo + rc.decode_uniform(dec, data, probs, _S_SLOTS, hi - lo)
+        if rc.decode_bit(dec, data, probs, _S_AHEAD_SLOTS + was_ahead):
+            was_ahead = 1
+            s = previous_s + 1 + rc.decode_integer(dec, data, probs, _S_GAP_SLOTS, False)
+            if s >= t:
+                status = BAD_VERTEX
+                break
+        else:
+            was_ahead = 0
+            n = previous_s + 1
+            bucket = rc.decode_tree(dec, data, probs, _S_BUCKET_SLOTS, _S_BUCKET_BITS)
+            lo = (bucket * n + S_BUCKETS - 1) // S_BUCKETS
+            hi = ((bucket + 1) * n + S_BUCKETS - 1) // S_BUCKETS
+            if hi <= lo:
+                status = BAD_VERTEX
+                break
+            s = lo + rc.decode_uniform(dec, data, probs, _S_SLOTS, hi - lo)
+        previous_s = s
         split_vertex[i] = s
         for d in range(3):
             old_positions[i, d] = quantised[s, d]

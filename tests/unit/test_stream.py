@@ -15,6 +15,7 @@ from qem_core._kernels import stream_coding
 from qem_core.codecs import decode_msgpack_mesh
 from qem_core.stream import (
     FIRST_FRAME_SPLITS,
+    STREAM_VERSION,
     SplitStreamDecoder,
     encode_split_frames,
     grid_for,
@@ -299,10 +300,11 @@ def _flip_middle(coded: bytes) -> bytes:
 
 @pytest.mark.parametrize("change", [
     _with(format="qem-mesh-msgpack"),
-    _with(version=4),
+    _with(version=5),
+    _with(version=3),  # version 3 frames (s coded as an index, not a gap) are no longer read
     _with(version=2),  # version 2 frames (deflated byte planes) are no longer read
     _with(version=1),
-    _with(version="3"),
+    _with(version="4"),
     _without("splits"),
     _without("grid"),
     _with(n_to=10**9),
@@ -375,8 +377,8 @@ def test_counts_a_frame_cannot_hold_are_refused_before_allocating():
     512 splits or faces per coded byte)."""
     decoder = SplitStreamDecoder(np.zeros((4, 3), np.int64), np.array([[0, 1, 2], [0, 2, 3]]))
     body = {
-        "format": "qem-splits", "version": 3, "n_from": 4, "n_to": 4 + 300, "faces_from": 2,
-        "bits": 16, "grid": [0.0, 0.0, 0.0, 1.0, 1.0, 1.0], "n_new_faces": 0,
+        "format": "qem-splits", "version": STREAM_VERSION, "n_from": 4, "n_to": 4 + 300,
+        "faces_from": 2, "bits": 16, "grid": [0.0, 0.0, 0.0, 1.0, 1.0, 1.0], "n_new_faces": 0,
         "splits": b"\x00" * 4,
     }  # fmt: skip
     for counts, message in (

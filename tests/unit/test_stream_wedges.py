@@ -15,6 +15,7 @@ import pytest
 import qem_core
 from qem_core.codecs.msgpack_mesh import read_msgpack_wedges
 from qem_core.stream import (
+    STREAM_VERSION,
     SplitStreamDecoder,
     encode_split_frames,
     grid_for,
@@ -168,7 +169,8 @@ def test_meshes_without_attributes_have_no_wedge_keys():
     pm = qem_core.build(*icosphere(2, jitter=0.05, seed=1))
     for frame in encode_split_frames(pm, pm.n_base, pm.n_full):
         body = msgpack.unpackb(frame[4:-4])
-        assert body["version"] == 3 and not any(key.startswith("wedge") for key in body)
+        assert body["version"] == STREAM_VERSION
+        assert not any(key.startswith("wedge") for key in body)
 
 
 def test_a_decoder_without_wedges_refines_the_geometry_alone(spot_pm):

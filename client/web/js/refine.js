@@ -31,13 +31,15 @@ import { decodeBaseWedges, decodeWedgeFields, WedgeLevels } from "./wedges.js";
 
 export { FrameCutter, WireFormatError };
 
-export const STREAM_VERSION = 3;
+export const STREAM_VERSION = 4;
 export const MESH_VERSION = 1;
 const EXPLICIT_FACE = 6; // face codes 0-2: (s, t, x) rotated; 3-5: (t, s, x); 6: explicit
 const ESCAPE = 255; // a third corner given as a back-distance, not as a neighbour index
 const SPAN_RING_LIMIT = 64; // as stream_coding.py: products stay below 2^53
 const FAN_SCAN = 16; // fans of up to this many corners are scanned rather than sorted
-const S_BUCKETS = 32; // s is coded as its bucket of [0, t), then its place in it
+// s is coded as its gap ahead of the previous split's s, else as its bucket of
+// [0, previous s], then its place in it
+const S_BUCKETS = 32;
 const S_BUCKET_BITS = 5;
 const DIFF_BITS = 13; // as stream_coding.py: shifts that keep products below 2^53
 const NORMAL_BITS = 12;
@@ -60,7 +62,9 @@ const STEP_ROWS = 9;
 const IS = INTEGER_SLOTS;
 const S_BUCKET_SLOTS = 0;
 const S_SLOTS = S_BUCKET_SLOTS + S_BUCKETS;
-const COUNT_SLOTS = S_SLOTS + UNIFORM_SLOTS;
+const S_AHEAD_SLOTS = S_SLOTS + UNIFORM_SLOTS;
+const S_GAP_SLOTS = S_AHEAD_SLOTS + 2;
+const COUNT_SLOTS = S_GAP_SLOTS + IS;
 const CODE_SLOTS = COUNT_SLOTS + IS;
 const ESCAPE_SLOT = CODE_SLOTS + 8 * 8;
 const THIRD_SLOTS = ESCAPE_SLOT + 1;
@@ -835,15 +839,27 @@ export class ProgressiveLevels {
     const axes = [0, 1, 2];
     const slots = [0, 0];
     let cornersWalked = 0;
+    let previousS = -1; // the previous split's s: the build takes them in ascending sweeps
+    let wasAhead = 0;
     for (let i = 0; i < k; i++) {
       if (coder.broken) short();
       const t = nFrom + i;
       if (t < 1) fail(`split ${t}: names a vertex that does not exist yet`);
-      const bucket = coder.tree(probs, S_BUCKET_SLOTS, S_BUCKET_BITS);
-      const lo = Math.floor((bucket * t + S_BUCKETS - 1) / S_BUCKETS);
-      const hi = Math.floor(((bucket + 1) * t + S_BUCKETS - 1) / S_BUCKETS);
-      if (hi <= lo) fail(`split ${t}: names a vertex that does not exist yet`);
-      const s = lo + coder.uniform(probs, S_SLOTS, hi - lo);
+      let s;
+      if (coder.bit(probs, S_AHEAD_SLOTS + wasAhead)) {
+        wasAhead = 1;
+        s = previousS + 1 + coder.integer(probs, S_GAP_SLOTS, false);
+        if (s >= t) fail(`split ${t}: names a vertex that does not exist yet`);
+      } else {
+        wasAhead = 0;
+        const n = previousS + 1;
+        const bucket = coder.tree(probs, S_BUCKET_SLOTS, S_BUCKET_BITS);
+        const lo = Math.floor((bucket * n + S_BUCKETS - 1) / S_BUCKETS);
+        const hi = Math.floor(((bucket + 1) * n + S_BUCKETS - 1) / S_BUCKETS);
+        if (hi <= lo) fail(`split ${t}: names a vertex that does not exist yet`);
+        s = lo + coder.uniform(probs, S_SLOTS, hi - lo);
+      }
+      previousS = s;
       state.gather(s);
       const { nc, nn } = state;
       cornersWalked += nc;

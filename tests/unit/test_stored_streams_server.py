@@ -5,6 +5,7 @@ built before streams were stored."""
 
 from __future__ import annotations
 
+import json
 import random
 
 import pytest
@@ -209,6 +210,25 @@ def test_a_missing_stream_is_made_again_once(tmp_path):
         assert client.get(url, params={"from": 1000}).status_code == 200
         assert client.app.state.reads.streams.made == 1
         assert stream.read_bytes() == data and index.is_file()
+
+
+def test_a_stream_stored_in_an_older_version_is_made_again_once(tmp_path):
+    """A stream stored before the frame version changed (its index says so) is encoded
+    again from the .qpm on first use, stored, and served in this version."""
+    with make_client(tmp_path / "outdated") as client:
+        info = _ready(client)
+        index_path = _blob(client, info, ".splits.json")
+        old = json.loads(index_path.read_bytes())
+        old["stream_version"] = split_stream.STREAM_VERSION - 1
+        index_path.write_bytes(json.dumps(old).encode())
+        response = client.get(f"/v1/meshes/{info['id']}/splits")
+        assert response.status_code == 200
+        pm = _pm(client, info)
+        assert_decoded_level(_decode(client, info["id"], pm.n_base, response.content), pm,
+                             pm.n_full)
+        assert client.app.state.reads.streams.made == 1
+        stored = json.loads(index_path.read_bytes())
+        assert stored["stream_version"] == split_stream.STREAM_VERSION
 
 
 def test_a_mesh_built_without_its_stream_gets_it_on_first_use(tmp_path):

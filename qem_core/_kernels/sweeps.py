@@ -63,6 +63,7 @@ def split_dependencies(faces, a, b, killed, killed_end, relabel, relabel_end, j_
     as the run left them (killed ones as they were when killed), is replayed back to
     the input's faces (overwritten)."""
     last = np.full(n_slots, -1, np.int32)
+    taken_by = np.full(j_count, -1, np.int32)
     pred_offsets = np.zeros(j_count + 1, np.int64)
     preds = np.empty(max(64, 6 * j_count), np.int32)
     n = 0
@@ -71,7 +72,6 @@ def split_dependencies(faces, a, b, killed, killed_end, relabel, relabel_end, j_
         j = j_count - 1 - k
         s = a[j]
         t = b[j]
-        start = n
         relabel_start = relabel_end[j - 1] if j > 0 else 0
         killed_start = killed_end[j - 1] if j > 0 else 0
         for i in range(relabel_start, relabel_end[j]):
@@ -95,13 +95,9 @@ def split_dependencies(faces, a, b, killed, killed_end, relabel, relabel_end, j_
                     v = faces[killed[killed_start + (i - relabel_end[j])], corner % 3]
             p = last[v]
             last[v] = k
-            if p < 0 or p == k:
+            if p < 0 or p == k or taken_by[p] == k:
                 continue
-            seen = False
-            for z in range(start, n):
-                seen |= preds[z] == p
-            if seen:
-                continue
+            taken_by[p] = k  # p is a predecessor of k already
             if n == preds.shape[0]:
                 bigger = np.empty(2 * n, np.int32)
                 bigger[:n] = preds

@@ -43,6 +43,7 @@ from qem_core.levels import encode_level
 from qem_core.progressive import ProgressiveMesh
 from qem_core.stored_stream import encode_stored_stream
 from qem_core.stream import (
+    STREAM_VERSION,
     SplitStreamDecoder,
     encode_split_frames,
     grid_for,
@@ -677,7 +678,7 @@ def test_server_streams_wedges_that_refine_its_levels(server, appearance_meshes)
                 assert response.headers["content-type"] == "application/x-qem-splits"
                 for payload in iter_frames(response.iter_bytes()):
                     body = msgpack.unpackb(payload[:-4])
-                    assert body["version"] == 3 and "wedges" in body
+                    assert body["version"] == STREAM_VERSION and "wedges" in body
                     decoder.feed(payload)
             full = http.get(f"{url}/lod", params={"format": "msgpack"}).content
             expected = codecs.msgpack_mesh.read_msgpack_wedges(full)

@@ -93,20 +93,26 @@ def save_qpm(pm: ProgressiveMesh, path) -> None:
             if name in _OPTIONAL_ARRAYS:
                 continue
             array = np.zeros(0, dtype)
-        data = np.ascontiguousarray(array, dtype=dtype).tobytes()
+        # Written from the arrays themselves (a copy only where the dtype or layout
+        # differs): building the file in memory first cost five copies of it, about
+        # 0.15 s of CPU for dragon's 50 MB and peak memory for a big scan.
+        data = memoryview(np.ascontiguousarray(array, dtype=dtype).reshape(-1).view(np.uint8))
         entries.append([name, dtype, list(np.shape(array)), offset])
         padding = -len(data) % 8
-        chunks.append(data + b"\0" * padding)
+        chunks += [data, b"\0" * padding]
         offset += len(data) + padding
     header = msgpack.packb({"arrays": entries, "metadata": metadata})
     version = 3 if pm.materials is not None else 2 if optional else 1
-    body = MAGIC + struct.pack("<II", version, len(header)) + header + b"".join(chunks)
-    blob = body + struct.pack("<I", zlib.crc32(body))
+    chunks.insert(0, MAGIC + struct.pack("<II", version, len(header)) + header)
     path = Path(path)
     fd, tmp = tempfile.mkstemp(dir=path.parent or ".", prefix=path.name, suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as out:
-            out.write(blob)
+            crc = 0
+            for chunk in chunks:
+                crc = zlib.crc32(chunk, crc)
+                out.write(chunk)
+            out.write(struct.pack("<I", crc))
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

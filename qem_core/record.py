@@ -147,21 +147,14 @@ def permuted(record: Record, order: np.ndarray) -> Record:
 
     killed_rows, killed_end = rows_of_runs(record.killed_end)
     relabel_rows, relabel_end = rows_of_runs(record.relabel_end)
-    wedges = record.wedge_log_end.shape[0] > 0
-    if wedges:
+    if record.wedge_log_end.shape[0]:
         log_rows, wedge_log_end = rows_of_runs(record.wedge_log_end)
         relabel_wedge_rows, wedge_relabel_end = rows_of_runs(record.wedge_relabel_end)
-    else:
+    else:  # a record of geometry alone keeps its empty wedge arrays
         log_rows = relabel_wedge_rows = np.zeros(0, np.int64)
         wedge_log_end = wedge_relabel_end = record.wedge_log_end
-    counts = record.counts.copy()
-    counts[:] = (
-        j_count,
-        killed_rows.size,
-        relabel_rows.size,
-        log_rows.size,
-        relabel_wedge_rows.size,
-    )
+    sizes = (killed_rows, relabel_rows, log_rows, relabel_wedge_rows)
+    counts = np.array([j_count, *(rows.size for rows in sizes)], np.int64)
     return Record(
         a=record.a[order],
         b=record.b[order],

@@ -58,7 +58,7 @@ from ._kernels.quadrics import QUADRIC_SIZE, fill_face_quadrics
 from ._kernels.runs import gather_runs
 from ._kernels.scale import ldexp_into
 from ._kernels.setup import fill_border_quadrics, fill_heap, sum_quadrics
-from ._kernels.sweeps import MIN_WINDOW, WINDOW_SHARE, split_dependencies, sweep_order
+from ._kernels.sweeps import split_dependencies, sweep_order, window_ends
 from .attributes import Wedges, check_options_for_wedges, make_wedges
 from .mesh import Mesh
 from .options import ERROR_MODE_CODES, WEIGHTING_AREA_EXPONENTS, WEIGHTING_CODES, BuildOptions
@@ -645,8 +645,9 @@ def _in_sweep_order(run: ContractionRun) -> ContractionRun:
     )  # fmt: skip
     level_of_slot = np.full(cx.vertices.shape[0], -1, np.int32)
     n_base = number_slots(cx.vertex_alive, record.b, 0, level_of_slot)
+    ends = np.array(window_ends(n_base, j_count), np.int64)
     order = sweep_order(pred_offsets, preds, record.a[:j_count], record.b[:j_count],
-                        level_of_slot, n_base, WINDOW_SHARE, MIN_WINDOW)
+                        level_of_slot, n_base, ends)
     # Split k undoes contraction J-1-k: the new contraction i is split J-1-i.
     contractions = (j_count - 1 - order[::-1]).astype(np.int64)
     return run._replace(record=permuted(record, contractions))

@@ -55,15 +55,32 @@ def _prefetch_ahead(faces, last, killed, killed_end, relabel, relabel_end, j_cou
                         prefetch(last, faces[f, r], 0)
 
 
+@numba.njit(cache=True, inline="always")
+def _touch(v, k, last, taken_by, preds, n):
+    """Split k touches vertex v: the last earlier split that touched v becomes one of k's
+    predecessors (once). Returns (preds, n), preds grown if need be."""
+    p = last[v]
+    last[v] = k
+    if p < 0 or p == k or taken_by[p] == k:
+        return preds, n
+    taken_by[p] = k
+    if n == preds.shape[0]:
+        bigger = np.empty(2 * n, np.int32)
+        bigger[:n] = preds
+        preds = bigger
+    preds[n] = p
+    return preds, n + 1
+
+
 @numba.njit(cache=True)
 def split_dependencies(faces, a, b, killed, killed_end, relabel, relabel_end, j_count, n_slots):
     """For split k (undoing contraction j = j_count-1-k), the earlier splits it must
     follow: the last split before it that touched each vertex it touches. Returns
-    (pred_offsets (j_count + 1,) int64, preds int64). ``faces`` (m, 3) int32, the faces
+    (pred_offsets (j_count + 1,) int64, preds int32). ``faces`` (m, 3) int32, the faces
     as the run left them (killed ones as they were when killed), is replayed back to
     the input's faces (overwritten)."""
     last = np.full(n_slots, -1, np.int32)
-    taken_by = np.full(j_count, -1, np.int32)
+    taken_by = np.full(j_count, -1, np.int32)  # the last split each one preceded
     pred_offsets = np.zeros(j_count + 1, np.int64)
     preds = np.empty(max(64, 6 * j_count), np.int32)
     n = 0
@@ -72,45 +89,26 @@ def split_dependencies(faces, a, b, killed, killed_end, relabel, relabel_end, j_
         j = j_count - 1 - k
         s = a[j]
         t = b[j]
-        relabel_start = relabel_end[j - 1] if j > 0 else 0
-        killed_start = killed_end[j - 1] if j > 0 else 0
-        for i in range(relabel_start, relabel_end[j]):
+        preds, n = _touch(s, k, last, taken_by, preds, n)
+        preds, n = _touch(t, k, last, taken_by, preds, n)
+        for i in range(relabel_end[j - 1] if j > 0 else 0, relabel_end[j]):
             f = relabel[i]
             for r in range(3):
                 if faces[f, r] == s:
                     faces[f, r] = t
-        # s, t, then the corners of the relabelled and the killed faces
-        n_touched = 2 + 3 * (relabel_end[j] - relabel_start + killed_end[j] - killed_start)
-        for q in range(n_touched):
-            if q == 0:
-                v = s
-            elif q == 1:
-                v = t
-            else:
-                corner = q - 2
-                i = relabel_start + corner // 3
-                if i < relabel_end[j]:
-                    v = faces[relabel[i], corner % 3]
-                else:
-                    v = faces[killed[killed_start + (i - relabel_end[j])], corner % 3]
-            p = last[v]
-            last[v] = k
-            if p < 0 or p == k or taken_by[p] == k:
-                continue
-            taken_by[p] = k  # p is a predecessor of k already
-            if n == preds.shape[0]:
-                bigger = np.empty(2 * n, np.int32)
-                bigger[:n] = preds
-                preds = bigger
-            preds[n] = p
-            n += 1
+            for r in range(3):
+                preds, n = _touch(faces[f, r], k, last, taken_by, preds, n)
+        for i in range(killed_end[j - 1] if j > 0 else 0, killed_end[j]):
+            for r in range(3):
+                preds, n = _touch(faces[killed[i], r], k, last, taken_by, preds, n)
         pred_offsets[k + 1] = n
     return pred_offsets, preds[:n]
 
 
 def window_ends(n_base: int, j_count: int) -> list[int]:
-    """The levels (vertex counts) where the windows of ``sweep_order`` end, from n_base +
-    the first window to n_base + j_count: the levels the greedy run's order gives."""
+    """The levels (vertex counts) where the sweep order's windows end, from n_base + the
+    first window to n_base + j_count: the levels the greedy run's order gives. A window
+    grows the level by 1/WINDOW_SHARE of its vertices, at least MIN_WINDOW."""
     ends = []
     k0 = 0
     while k0 < j_count:
@@ -128,11 +126,12 @@ def _lowest_bit(word):
 
 
 @numba.njit(cache=True)
-def sweep_order(pred_offsets, preds, survivor, retired, level_of_slot, n_base, share, min_window):
+def sweep_order(pred_offsets, preds, survivor, retired, level_of_slot, n_base, ends):
     """The new split order (position -> old split k), window by window (see the module
     docstring). survivor, retired : the slots a and b of each contraction j (split
     k = J-1-j); level_of_slot : (slots,) int32, the survivors' level numbers (the
-    others -1), overwritten with every slot's number in the new order.
+    others -1), overwritten with every slot's number in the new order; ends : the
+    windows' last levels (``window_ends``).
 
     The ready splits of a window are bits of a bitmap over their s's level numbers (two
     ready splits never share an s: the second would follow the first); a sweep takes the
@@ -161,8 +160,8 @@ def sweep_order(pred_offsets, preds, survivor, retired, level_of_slot, n_base, s
     split_of_key = np.empty(n_base + j_count, np.int32)
     taken = 0
     k0 = 0
-    while k0 < j_count:
-        k1 = min(j_count, k0 + max(min_window, (n_base + k0) // share))
+    for end in ends:
+        k1 = end - n_base
         for k in range(k0, k1):
             count = 0
             for z in range(pred_offsets[k], pred_offsets[k + 1]):
@@ -175,7 +174,7 @@ def sweep_order(pred_offsets, preds, survivor, retired, level_of_slot, n_base, s
         cursor = 0
         while taken < k1:
             w = cursor >> 6
-            word = ready[w] & (np.int64(-1) << (cursor & 63)) if w < ready.shape[0] else 0
+            word = ready[w] & (np.int64(-1) << (cursor & 63))  # cursor <= n_base + j_count
             while word == 0:  # a ready split's s is below n_base + taken
                 w += 1
                 if w > (n_base + taken) >> 6:

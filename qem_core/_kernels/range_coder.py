@@ -44,6 +44,7 @@ Binarisations (one function per kind, the caller picks the contexts):
 
 import numba
 import numpy as np
+from numba.cpython.unsafe.numbers import leading_zeros
 
 PROB_BITS = 12
 ONE = 1 << PROB_BITS
@@ -93,6 +94,13 @@ def new_encoder() -> np.ndarray:
 
 
 @_kernel
+def bit_length(value):
+    """The bit length of |value| (0 for 0), as one count-leading-zeros instruction: the
+    shift loop it replaces ran a step per bit, for every value coded and most contexts."""
+    return 64 - leading_zeros(np.uint64(abs(value)))
+
+
+@_kernel
 def _put(enc, out, byte):
     at = enc[WRITTEN]
     if at >= 0:
@@ -125,16 +133,15 @@ def encode_bit(enc, out, probs, ctx, bit):
     # The range in a local: a store to probs (or out) could alias enc for the compiler,
     # which would otherwise load enc[RANGE] again after each (a coded bit's latency is
     # what bounds the coder).
+    # Without a branch on the bit: the bits coded are what the contexts could not
+    # predict, so a branch on them would be guessed wrong about as often as not.
     p = np.int64(probs[ctx])
     range_ = enc[RANGE]
     bound = (range_ >> PROB_BITS) * p
-    if bit == 0:
-        range_ = bound
-        probs[ctx] = p + ((ONE - p) >> RATE)
-    else:
-        enc[LOW] += bound
-        range_ -= bound
-        probs[ctx] = p - (p >> RATE)
+    ones = -np.int64(bit != 0)  # all ones for a 1, else 0
+    enc[LOW] += bound & ones
+    range_ = bound + ((range_ - 2 * bound) & ones)
+    probs[ctx] = p + (((ONE - p) >> RATE) & ~ones) - ((p >> RATE) & ones)
     while range_ < TOP:
         range_ <<= 8
         enc[RANGE] = range_
@@ -146,8 +153,7 @@ def encode_bit(enc, out, probs, ctx, bit):
 def encode_direct(enc, out, bit):
     """A bit with probability 1/2, no context (LZMA's direct bits)."""
     enc[RANGE] >>= 1
-    if bit:
-        enc[LOW] += enc[RANGE]
+    enc[LOW] += enc[RANGE] & -np.int64(bit != 0)
     while enc[RANGE] < TOP:
         enc[RANGE] <<= 8
         _shift_low(enc, out)
@@ -245,9 +251,7 @@ def encode_integer(enc, out, probs, base, value, signed):
     if magnitude < 0 or magnitude > MAX_MAGNITUDE:
         return 1
     n = magnitude + 1
-    exponent = 0
-    while (n >> (exponent + 1)) != 0:
-        exponent += 1
+    exponent = bit_length(n) - 1
     for i in range(exponent):
         encode_bit(enc, out, probs, base + i, 1)
     if exponent < MAX_EXPONENT:
@@ -292,9 +296,7 @@ def encode_uniform(enc, out, probs, base, value, n):
     """value in [0, n); nothing for n <= 1."""
     if n <= 1:
         return
-    n_bits = 0
-    while ((n - 1) >> n_bits) != 0:
-        n_bits += 1
+    n_bits = bit_length(n - 1)
     tight = True  # the bits so far equal those of n - 1
     top = n - 1
     for j in range(n_bits - 1, -1, -1):
@@ -311,9 +313,7 @@ def decode_uniform(dec, data, probs, base, n):
     """A value in [0, n): 0, reading nothing, for n <= 1."""
     if n <= 1:
         return np.int64(0)
-    n_bits = 0
-    while ((n - 1) >> n_bits) != 0:
-        n_bits += 1
+    n_bits = bit_length(n - 1)
     tight = True
     top = n - 1
     value = np.int64(0)

@@ -257,7 +257,7 @@ def _gather(faces, head, nxt, s, cs, nb):
     return nc, _distinct_sorted(nb, m)
 
 
-@numba.njit(cache=True, nogil=True)
+@_kernel
 def _distinct_sorted(values, n):
     """Sort values[:n] in place and drop repeats; returns the new length.
 
@@ -415,7 +415,7 @@ def _scratch_start():
     )
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, inline="always")
 def _scratch(head, nxt, s, cs, nb, mark, ys, keys):
     """The buffers of _gather, _predict and _walk, grown for the corners of s if need
     be."""
@@ -427,7 +427,7 @@ def _scratch(head, nxt, s, cs, nb, mark, ys, keys):
     return _room(degree, cs, nb, mark, ys, keys)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, inline="always")
 def _room(need, cs, nb, mark, ys, keys):
     """The buffers of _gather and _set_gather, _predict and _walk, grown for ``need`` corners."""
     if need < cs.shape[0]:
@@ -510,7 +510,7 @@ def _centroid_span(a, b, sums, prediction):
         prediction[d] = pt - ps
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, inline="always")
 def _ring_room(head, nxt, s, t, nb):
     """nb, grown to hold twice the corners of s and of t if need be."""
     need = 0
@@ -525,7 +525,7 @@ def _ring_room(head, nxt, s, t, nb):
     return nb if need <= nb.shape[0] else np.empty(2 * need, np.int64)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, inline="always")
 def _grow(array, need):
     if need <= array.shape[0]:
         return array
@@ -535,14 +535,7 @@ def _grow(array, need):
     return grown
 
 
-@_kernel
-def _bit_length(value):
-    value = abs(value)
-    n = 0
-    while value:
-        n += 1
-        value >>= 1
-    return n
+_bit_length = rc.bit_length
 
 
 @_kernel

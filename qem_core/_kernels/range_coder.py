@@ -193,17 +193,15 @@ def _next_byte(dec, data):
 
 @_kernel
 def decode_bit(dec, data, probs, ctx):
+    # Without a branch on the bit, as encode_bit (the data decides it).
     p = np.int64(probs[ctx])
-    bound = (dec[RANGE] >> PROB_BITS) * p
-    if dec[CODE] < bound:
-        dec[RANGE] = bound
-        probs[ctx] = p + ((ONE - p) >> RATE)
-        bit = 0
-    else:
-        dec[CODE] -= bound
-        dec[RANGE] -= bound
-        probs[ctx] = p - (p >> RATE)
-        bit = 1
+    range_ = dec[RANGE]
+    bound = (range_ >> PROB_BITS) * p
+    ones = -np.int64(dec[CODE] >= bound)  # all ones for a 1, else 0
+    dec[CODE] -= bound & ones
+    dec[RANGE] = bound + ((range_ - 2 * bound) & ones)
+    probs[ctx] = p + (((ONE - p) >> RATE) & ~ones) - ((p >> RATE) & ones)
+    bit = ones & 1
     while dec[RANGE] < TOP:
         dec[RANGE] <<= 8
         dec[CODE] = (dec[CODE] << 8) | _next_byte(dec, data)

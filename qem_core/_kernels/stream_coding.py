@@ -401,7 +401,7 @@ def _append_face(faces, head, nxt, f, a, b, c):
 @numba.njit(cache=True, nogil=True)
 def _scratch_start():
     """The buffers of a coder or decoder: cs, nb, mark, ys, keys of _gather, _predict and
-    _walk (``_scratch`` grows them), sums of _span_prediction, six 3-vectors (prediction,
+    _walk (``_room`` grows them), sums of _span_prediction, six 3-vectors (prediction,
     work, binormal, edge, mid, axes) and the slots of a value."""
     return (
         np.empty(16, np.int64),
@@ -415,16 +415,15 @@ def _scratch_start():
     )
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def _scratch(head, nxt, s, cs, nb, mark, ys, keys):
-    """The buffers of _gather, _predict and _walk, grown for the corners of s if need
-    be."""
+@_kernel
+def _degree(head, nxt, v):
+    """How many corners v has (the length of its list)."""
     degree = 0
-    c = head[s]
+    c = head[v]
     while c != -1:
         degree += 1
         c = nxt[c]
-    return _room(degree, cs, nb, mark, ys, keys)
+    return degree
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -508,21 +507,6 @@ def _centroid_span(a, b, sums, prediction):
         pt = (sums[0, d] * (b + 1) + sums[1, d]) // den
         ps = (sums[1, d] * (a + 1) + sums[0, d]) // den
         prediction[d] = pt - ps
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _ring_room(head, nxt, s, t, nb):
-    """nb, grown to hold twice the corners of s and of t if need be."""
-    need = 0
-    c = head[s]
-    while c != -1:
-        need += 2
-        c = nxt[c]
-    c = head[t]
-    while c != -1:
-        need += 2
-        c = nxt[c]
-    return nb if need <= nb.shape[0] else np.empty(2 * need, np.int64)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -875,18 +859,79 @@ def encode_connectivity(
     backs = np.empty(3 * n_new, np.int64)
     masks = np.zeros(max(16, 6 * k), np.uint8)
     cs, nb, mark, ys, keys, sums, vectors, slots = _scratch_start()
-    prediction, work, binormal, edge, mid, axes = vectors
-    n_third = 0
-    n_back = 0
-    n_mask = 0
-    face = faces_from
-    new = 0
     cursors = np.full(_AHEAD, -2, np.int64)
-    for i in range(k):
+    counters = np.zeros(_COUNTERS, np.int64)
+    counters[_FACE] = faces_from
+    while True:
+        status, need = _encode_splits(
+            faces, head, nxt, n_from, split_vertex, new_faces, new_face_counts,
+            relabel_offsets, relabel_faces, quantised, split_quantised, positions,
+            position_slots, split_context, codes, thirds, steps, walks, backs, masks,
+            counters, cursors, cs, nb, mark, ys, keys, sums, vectors, slots,
+        )  # fmt: skip
+        if status != _NEED_ROOM:
+            break
+        cs, nb, mark, ys, keys = _room(need, cs, nb, mark, ys, keys)
+        masks = _grow(masks, counters[_MASK] + need)
+    return (
+        codes,
+        thirds[: counters[_THIRD]],
+        steps[: counters[_THIRD]],
+        walks[: counters[_THIRD]],
+        backs[: counters[_BACK]],
+        masks[: counters[_MASK]],
+        status,
+    )
+
+
+# Where _encode_splits stands, kept between its calls in counters: the next split, and
+# how many thirds, backs, mask entries, faces (of the state) and new faces so far.
+_SPLIT = 0
+_THIRD = 1
+_BACK = 2
+_MASK = 3
+_FACE = 4
+_NEW = 5  # rows of new_faces taken
+_COUNTERS = 6
+_NEED_ROOM = -1
+
+
+@_kernel
+def _encode_splits(
+    faces, head, nxt, n_from, split_vertex, new_faces, new_face_counts, relabel_offsets,
+    relabel_faces, quantised, split_quantised, positions, position_slots, split_context,
+    codes, thirds, steps, walks, backs, masks, counters, cursors, cs, nb, mark, ys, keys,
+    sums, vectors, slots,
+):  # fmt: skip
+    """The loop of ``encode_connectivity`` from split counters[_SPLIT] on, in a kernel
+    without reference counting: its arrays are never rebound here, and numba counted
+    references (an atomic increment and decrement) at each rebinding and each view, about
+    6 % of the encoder's time. Returns (status, 0), or (_NEED_ROOM, need) before touching
+    a split whose corners do not fit the scratch (or masks): the caller grows them for
+    ``need`` corners and calls again."""
+    prediction, work, binormal, edge, mid, axes = vectors
+    k = split_vertex.shape[0]
+    n_third = counters[_THIRD]
+    n_back = counters[_BACK]
+    n_mask = counters[_MASK]
+    face = counters[_FACE]
+    new = counters[_NEW]
+    for i in range(counters[_SPLIT], k):
         _prefetch_ahead(faces, head, nxt, quantised, split_vertex, i, cursors)
         s = np.int64(split_vertex[i])  # int64 as in the decoder: the helpers compile once
         t = n_from + i
-        cs, nb, mark, ys, keys = _scratch(head, nxt, s, cs, nb, mark, ys, keys)
+        # Room for the corners of s, and for those of s and t after the split (the ring
+        # sums): each of its new faces brings at most three.
+        nc = _degree(head, nxt, s)
+        need = nc + 3 * new_face_counts[i]
+        if need >= cs.shape[0] or n_mask + nc > masks.shape[0]:
+            counters[_SPLIT] = i
+            counters[_THIRD] = n_third
+            counters[_BACK] = n_back
+            counters[_MASK] = n_mask
+            counters[_FACE] = face
+            counters[_NEW] = new
+            return _NEED_ROOM, need
         nc, nn = _gather(faces, head, nxt, s, cs, nb)
         keys[nc] = -1  # not keyed for this split yet
         context = split_context[i]
@@ -949,7 +994,6 @@ def encode_connectivity(
                     n_back += 1
             n_third += 1
         _predict(faces, s, cs, nc, xl, xr, mark, ys, keys)
-        masks = _grow(masks, n_mask + nc)
         for q in range(nc):
             masks[n_mask + q] = 2 * mark[q]
         moved = False
@@ -965,7 +1009,7 @@ def encode_connectivity(
             for q2 in range(nc):
                 q += cs[q2] < hit
             if hit < 0 or q >= nc or cs[q] != hit:
-                return codes, thirds, steps, walks, backs, masks, NO_CORNER
+                return NO_CORNER, 0
             masks[n_mask + q] |= 1
             moved = True
         if moved:
@@ -982,7 +1026,6 @@ def encode_connectivity(
             _append_face(faces, head, nxt, face, new_faces[q, 0], new_faces[q, 1], new_faces[q, 2])
             face += 1
         new += new_face_counts[i]
-        nb = _ring_room(head, nxt, s, t, nb)
         _span_prediction(faces, head, nxt, s, t, quantised, nb, sums, prediction)
         for d in range(3):
             edge[d] = split_quantised[i, 1, d] - split_quantised[i, 0, d]
@@ -1020,15 +1063,13 @@ def encode_connectivity(
         for d in range(3):
             quantised[s, d] = split_quantised[i, 0, d]
             quantised[t, d] = split_quantised[i, 1, d]
-    return (
-        codes,
-        thirds[:n_third],
-        steps[:n_third],
-        walks[:n_third],
-        backs[:n_back],
-        masks[:n_mask],
-        0,
-    )
+    counters[_SPLIT] = k
+    counters[_THIRD] = n_third
+    counters[_BACK] = n_back
+    counters[_MASK] = n_mask
+    counters[_FACE] = face
+    counters[_NEW] = new
+    return 0, 0
 
 
 @_kernel
@@ -1509,7 +1550,7 @@ def decode_connectivity(
                     used += cap
                 pool[starts[v] + n] = 3 * f + j
                 counts[v] = n + 1
-        need = 4 * (counts[s] + counts[t])  # twice the corners, as _ring_room
+        need = 4 * (counts[s] + counts[t])  # room for twice the corners of s and t
         if need > nb.shape[0]:
             nb = np.empty(need, np.int64)
         _set_span_prediction(faces, starts, counts, pool, s, t, quantised, nb, sums, prediction)

@@ -95,7 +95,7 @@ __all__ = [
 ]
 
 MEDIA_TYPE = "application/x-qem-splits"
-STREAM_VERSION = 4
+STREAM_VERSION = 5
 # Frames grow from FIRST_FRAME_SPLITS to SPLITS_PER_FRAME splits (doubling), so that a
 # viewer refines early in the stream: it gets a first level after a small frame.
 FIRST_FRAME_SPLITS = 512
@@ -760,13 +760,14 @@ class SplitStreamDecoder:
         counts = np.zeros(k, np.int64)
         old_positions = np.empty((k, 3), np.int64)
         partial = stop is not None and stop < n_to
+        frame_splits = k
         if partial:
             k = stop - n_from
         status, split_vertex, relabel_counts, relabel_faces, pool, used, started, undo = (
             decode_connectivity(
                 faces, faces_from, sets.starts, sets.counts, sets.caps, sets.pool, sets.used,
-                n_from, k, n_new, coded, quantised, (1 << grid.bits) - 1, contexts, born,
-                counts, partial, old_positions,
+                n_from, k, frame_splits, n_new, coded, quantised, (1 << grid.bits) - 1,
+                contexts, born, counts, partial, old_positions,
             )
         )  # fmt: skip
         sets = self._sets = sets._replace(pool=pool, used=used)

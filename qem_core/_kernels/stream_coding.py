@@ -1108,9 +1108,10 @@ def code_splits(
     position_slots,
     split_context,
 ):
-    """Range-code what ``encode_connectivity`` produced, split by split, in the order
-    ``decode_connectivity`` reads it: s, the face count, each face's code and third corner
-    (or corners_back), the relabel mask, position_span, the placement, position_mid. Only
+    """Range-code what ``encode_connectivity`` produced in the order
+    ``decode_connectivity`` reads it: every split's s, then split by split the face
+    count, each face's code and third corner (or corners_back), the relabel mask,
+    position_span, the placement, position_mid. Only
     the fields in the ``fields`` flags are coded (all of them for a frame). Returns 0, or
     1 when an integer was out of the coder's range (``range_coder.encode_integer``: the
     output is then wrong)."""
@@ -1119,14 +1120,17 @@ def code_splits(
     at_third = 0
     at_back = 0
     at_mask = 0
-    previous_s = -1
-    was_ahead = 0
+    if fields & FIELD_SPLIT_BACK:
+        # Every split's s first: a decoder then knows the frame's split vertices before
+        # it touches the state, and fetches what the next splits will read early.
+        previous_s = -1
+        was_ahead = 0
+        for i in range(split_back.shape[0]):
+            s = n_from + i - split_back[i]
+            was_ahead = _code_s(enc, out, probs, s, previous_s, was_ahead)
+            previous_s = s
     for i in range(split_back.shape[0]):
-        t = n_from + i
         context = split_context[i]
-        if fields & FIELD_SPLIT_BACK:
-            was_ahead = _code_s(enc, out, probs, t - split_back[i], previous_s, was_ahead)
-        previous_s = t - split_back[i]
         count = new_face_counts[i]
         if fields & FIELD_FACE_COUNTS:
             bad |= rc.encode_integer(enc, out, probs, _COUNT_SLOTS, count, False)
@@ -1304,6 +1308,82 @@ def undo_splits(faces, quantised, split_vertex, old_positions, n_started, undo, 
             quantised[s, d] = old_positions[i, d]
 
 
+@_kernel
+def _decode_split_vertices(dec, data, probs, n_from, split_vertex):
+    """Every split's s of the frame into split_vertex (the inverse of code_splits's
+    first loop); returns 0, SHORT_DATA, or BAD_VERTEX for an s that is no vertex yet."""
+    previous_s = -1
+    was_ahead = 0
+    for i in range(split_vertex.shape[0]):
+        if dec[rc.BROKEN]:
+            return SHORT_DATA
+        t = n_from + i
+        if t < 1:
+            return BAD_VERTEX
+        if rc.decode_bit(dec, data, probs, _S_AHEAD_SLOTS + was_ahead):
+            was_ahead = 1
+            s = previous_s + 1 + rc.decode_integer(dec, data, probs, _S_GAP_SLOTS, False)
+            if s >= t:
+                return BAD_VERTEX
+        else:
+            was_ahead = 0
+            n = previous_s + 1
+            bucket = rc.decode_tree(dec, data, probs, _S_BUCKET_SLOTS, _S_BUCKET_BITS)
+            lo = (bucket * n + S_BUCKETS - 1) // S_BUCKETS
+            hi = ((bucket + 1) * n + S_BUCKETS - 1) // S_BUCKETS
+            if hi <= lo:
+                return BAD_VERTEX
+            s = lo + rc.decode_uniform(dec, data, probs, _S_SLOTS, hi - lo)
+        previous_s = s
+        split_vertex[i] = s
+    return 0
+
+
+# How far ahead the decoder asks for each stage of a split's reads (_set_prefetch_ahead).
+_SET_AHEAD = (16, 8, 4, 2)
+_PREFETCH_CORNERS = 16  # at most this many corners of a split vertex are fetched early
+
+
+@_kernel
+def _set_prefetch_ahead(faces, starts, counts, pool, quantised, split_vertex, i):
+    """Ask for what the decoder's next splits will read of the corner sets, in stages a
+    split apart: the frame's split vertices are decoded first (``code_splits``), so the
+    decoder knows them ahead, as the encoder does (``_prefetch_ahead``). For split
+    i + 16 its set's place and its position; for i + 8 its block of corners; for i + 4
+    the faces of those corners; for i + 2 the positions of their vertices (the ring).
+    Each stage reads what the one before asked for. The splits in between change the
+    sets: a stage may then fetch something useless, never read out of the state."""
+    k = split_vertex.shape[0]
+    j = i + _SET_AHEAD[0]
+    if j < k:
+        v = split_vertex[j]
+        prefetch(starts, v, 0)
+        prefetch(counts, v, 0)
+        prefetch(quantised, v, 0)
+        prefetch(quantised, v, 16)
+    j = i + _SET_AHEAD[1]
+    if j < k:
+        at = starts[split_vertex[j]]
+        prefetch(pool, at, 0)
+        prefetch(pool, at, 64)
+    j = i + _SET_AHEAD[2]
+    if j < k:
+        v = split_vertex[j]
+        at = starts[v]
+        for q in range(min(counts[v], _PREFETCH_CORNERS)):
+            prefetch(faces, pool[at + q] // 3, 0)
+    j = i + _SET_AHEAD[3]
+    if j < k:
+        v = split_vertex[j]
+        at = starts[v]
+        for q in range(min(counts[v], _PREFETCH_CORNERS)):
+            f = pool[at + q] // 3
+            for r in range(3):
+                w = faces[f, r]
+                prefetch(quantised, w, 0)
+                prefetch(quantised, w, 16)
+
+
 @numba.njit(cache=True, nogil=True)
 def decode_connectivity(
     faces,
@@ -1315,6 +1395,7 @@ def decode_connectivity(
     used,
     n_from,
     n_splits,
+    n_frame_splits,
     n_new_faces,
     data,
     quantised,
@@ -1350,7 +1431,8 @@ def decode_connectivity(
     k = n_splits
     dec = rc.start_decoder(data, 0)
     context = np.zeros(SPLIT_CONTEXT, np.int64)
-    split_vertex = np.zeros(k, np.int32)
+    split_vertex = np.zeros(max(k, n_frame_splits), np.int32)
+    status = _decode_split_vertices(dec, data, probs, n_from, split_vertex)
     relabel_counts = np.zeros(k, np.int64)
     relabel_faces = np.empty(max(16, 2 * k), np.int32)
     undo = np.empty(max(16, 4 * k), np.int64)
@@ -1360,38 +1442,16 @@ def decode_connectivity(
     n_relabel = 0
     n_undo = 0
     n_started = 0
-    previous_s = -1  # the previous split's s
-    was_ahead = 0
     corners_walked = 0  # against FRAME_WORK_LIMIT
     face = faces_from
     face_end = faces_from + n_new_faces
-    status = 0
-    for i in range(k):
+    for i in range(k if status == 0 else 0):
         if dec[rc.BROKEN]:
             status = SHORT_DATA
             break
         t = n_from + i
-        if t < 1:
-            status = BAD_VERTEX
-            break
-        if rc.decode_bit(dec, data, probs, _S_AHEAD_SLOTS + was_ahead):
-            was_ahead = 1
-            s = previous_s + 1 + rc.decode_integer(dec, data, probs, _S_GAP_SLOTS, False)
-            if s >= t:
-                status = BAD_VERTEX
-                break
-        else:
-            was_ahead = 0
-            n = previous_s + 1
-            bucket = rc.decode_tree(dec, data, probs, _S_BUCKET_SLOTS, _S_BUCKET_BITS)
-            lo = (bucket * n + S_BUCKETS - 1) // S_BUCKETS
-            hi = ((bucket + 1) * n + S_BUCKETS - 1) // S_BUCKETS
-            if hi <= lo:
-                status = BAD_VERTEX
-                break
-            s = lo + rc.decode_uniform(dec, data, probs, _S_SLOTS, hi - lo)
-        previous_s = s
-        split_vertex[i] = s
+        _set_prefetch_ahead(faces, starts, counts, pool, quantised, split_vertex[:k], i)
+        s = np.int64(split_vertex[i])
         for d in range(3):
             old_positions[i, d] = quantised[s, d]
         n_started = i + 1
@@ -1597,7 +1657,7 @@ def decode_connectivity(
             status = BAD_COUNT
     return (
         status,
-        split_vertex,
+        split_vertex[:k],
         relabel_counts,
         relabel_faces[:n_relabel],
         pool,

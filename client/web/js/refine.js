@@ -31,7 +31,7 @@ import { decodeBaseWedges, decodeWedgeFields, WedgeLevels } from "./wedges.js";
 
 export { FrameCutter, WireFormatError };
 
-export const STREAM_VERSION = 4;
+export const STREAM_VERSION = 5;
 export const MESH_VERSION = 1;
 const EXPLICIT_FACE = 6; // face codes 0-2: (s, t, x) rotated; 3-5: (t, s, x); 6: explicit
 const ESCAPE = 255; // a third corner given as a back-distance, not as a neighbour index
@@ -328,6 +328,37 @@ export function decodeFrame(payload) {
     coded,
     wedges: decodeWedgeFields(body, k),
   };
+}
+
+/** Every split's s of a frame, which it codes before the splits' other fields
+ * (stream_coding._decode_split_vertices): the ahead decision and the gap, else the
+ * bucket and the offset within it. */
+function decodeSplitVertices(coder, probs, nFrom, k) {
+  const splitVertex = new Int32Array(k);
+  let previousS = -1; // the previous split's s: the build takes them in ascending sweeps
+  let wasAhead = 0;
+  for (let i = 0; i < k; i++) {
+    if (coder.broken) fail("split frame: the coded splits end early (truncated or corrupt data)");
+    const t = nFrom + i;
+    if (t < 1) fail(`split ${t}: names a vertex that does not exist yet`);
+    let s;
+    if (coder.bit(probs, S_AHEAD_SLOTS + wasAhead)) {
+      wasAhead = 1;
+      s = previousS + 1 + coder.integer(probs, S_GAP_SLOTS, false);
+      if (s >= t) fail(`split ${t}: names a vertex that does not exist yet`);
+    } else {
+      wasAhead = 0;
+      const n = previousS + 1;
+      const bucket = coder.tree(probs, S_BUCKET_SLOTS, S_BUCKET_BITS);
+      const lo = Math.floor((bucket * n + S_BUCKETS - 1) / S_BUCKETS);
+      const hi = Math.floor(((bucket + 1) * n + S_BUCKETS - 1) / S_BUCKETS);
+      if (hi <= lo) fail(`split ${t}: names a vertex that does not exist yet`);
+      s = lo + coder.uniform(probs, S_SLOTS, hi - lo);
+    }
+    previousS = s;
+    splitVertex[i] = s;
+  }
+  return splitVertex;
 }
 
 /**
@@ -839,27 +870,11 @@ export class ProgressiveLevels {
     const axes = [0, 1, 2];
     const slots = [0, 0];
     let cornersWalked = 0;
-    let previousS = -1; // the previous split's s: the build takes them in ascending sweeps
-    let wasAhead = 0;
+    const splitVertex = decodeSplitVertices(coder, probs, nFrom, k);
     for (let i = 0; i < k; i++) {
       if (coder.broken) short();
       const t = nFrom + i;
-      if (t < 1) fail(`split ${t}: names a vertex that does not exist yet`);
-      let s;
-      if (coder.bit(probs, S_AHEAD_SLOTS + wasAhead)) {
-        wasAhead = 1;
-        s = previousS + 1 + coder.integer(probs, S_GAP_SLOTS, false);
-        if (s >= t) fail(`split ${t}: names a vertex that does not exist yet`);
-      } else {
-        wasAhead = 0;
-        const n = previousS + 1;
-        const bucket = coder.tree(probs, S_BUCKET_SLOTS, S_BUCKET_BITS);
-        const lo = Math.floor((bucket * n + S_BUCKETS - 1) / S_BUCKETS);
-        const hi = Math.floor(((bucket + 1) * n + S_BUCKETS - 1) / S_BUCKETS);
-        if (hi <= lo) fail(`split ${t}: names a vertex that does not exist yet`);
-        s = lo + coder.uniform(probs, S_SLOTS, hi - lo);
-      }
-      previousS = s;
+      const s = splitVertex[i];
       state.gather(s);
       const { nc, nn } = state;
       cornersWalked += nc;

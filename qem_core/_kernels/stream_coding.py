@@ -519,9 +519,6 @@ def _grow(array, need):
     return grown
 
 
-_bit_length = rc.bit_length
-
-
 @_kernel
 def _sign(value):
     """Context of a sign: 0 for 0, 1 for positive, 2 for negative."""
@@ -533,7 +530,7 @@ def _shift_to(values, bits):
     """Shift the three values right (floor) until the largest magnitude has at most
     ``bits`` bits."""
     big = max(abs(values[0]), abs(values[1]), abs(values[2]))
-    shift = max(0, _bit_length(big) - bits)
+    shift = max(0, rc.bit_length(big) - bits)
     for d in range(3):
         values[d] >>= shift
 
@@ -580,7 +577,7 @@ def _ring_shape(faces, quantised, s, cs, nc, nb, nn, context, work):
     for d in range(3):
         context[_SPREAD + d] = context[_SPREAD + d] // nn if nn else 0
     _shift_to(work, _LAPLACE_BITS)
-    shift = max(0, _bit_length(big) - _DIFF_BITS)
+    shift = max(0, rc.bit_length(big) - _DIFF_BITS)
     nx = 0
     ny = 0
     nz = 0
@@ -632,7 +629,7 @@ def _span_slots(context, plane, axes, n_known, edge, prediction, slots):
     """Context slots (magnitude block, sign slot) of the n_known-th span value into
     slots, and the value it is coded against (edge holds the axes already known)."""
     d = axes[n_known]
-    row = min(_bit_length(context[_SPREAD + d]), _ROWS - 1)
+    row = min(rc.bit_length(context[_SPREAD + d]), _ROWS - 1)
     if plane and n_known == 2:
         i, j = axes[0], axes[1]
         normal = context[_NORMAL : _NORMAL + 3]
@@ -675,15 +672,15 @@ def _mid_slots(context, framed, axes, n_known, edge, binormal, reduced, mid, slo
     (mid holds the values already known)."""
     d = axes[n_known]
     if not framed:
-        slots[0] = _MID_SLOTS + min(_bit_length(edge[d]), _ROWS - 1) * _IS
+        slots[0] = _MID_SLOTS + min(rc.bit_length(edge[d]), _ROWS - 1) * _IS
         slots[1] = slots[0] + _IS - 1
         return 0
     a, b = axes[0], axes[1]
     normal = context[_NORMAL : _NORMAL + 3]
     bulge = 1 if context[_BULGE] == 1 else (-1 if context[_BULGE] == 2 else 0)
-    length = min(_bit_length(abs(edge[0]) + abs(edge[1]) + abs(edge[2])), _ROWS - 1)
+    length = min(rc.bit_length(abs(edge[0]) + abs(edge[1]) + abs(edge[2])), _ROWS - 1)
     if n_known == 0:
-        slots[0] = _MID1_SLOTS + min(_bit_length(edge[a]), _ROWS - 1) * _IS
+        slots[0] = _MID1_SLOTS + min(rc.bit_length(edge[a]), _ROWS - 1) * _IS
         slots[1] = _MID_SIGN_SLOTS + _sign(bulge * normal[a])
         return 0
     if n_known == 1:
@@ -925,12 +922,7 @@ def _encode_splits(
         nc = _degree(head, nxt, s)
         need = nc + 3 * new_face_counts[i]
         if need >= cs.shape[0] or n_mask + nc > masks.shape[0]:
-            counters[_SPLIT] = i
-            counters[_THIRD] = n_third
-            counters[_BACK] = n_back
-            counters[_MASK] = n_mask
-            counters[_FACE] = face
-            counters[_NEW] = new
+            _keep(counters, i, n_third, n_back, n_mask, face, new)
             return _NEED_ROOM, need
         nc, nn = _gather(faces, head, nxt, s, cs, nb)
         keys[nc] = -1  # not keyed for this split yet
@@ -1063,13 +1055,19 @@ def _encode_splits(
         for d in range(3):
             quantised[s, d] = split_quantised[i, 0, d]
             quantised[t, d] = split_quantised[i, 1, d]
-    counters[_SPLIT] = k
+    _keep(counters, k, n_third, n_back, n_mask, face, new)
+    return 0, 0
+
+
+@_kernel
+def _keep(counters, split, n_third, n_back, n_mask, face, new):
+    """Where _encode_splits stopped, for its next call and its caller."""
+    counters[_SPLIT] = split
     counters[_THIRD] = n_third
     counters[_BACK] = n_back
     counters[_MASK] = n_mask
     counters[_FACE] = face
     counters[_NEW] = new
-    return 0, 0
 
 
 @_kernel
@@ -1426,12 +1424,14 @@ def decode_connectivity(
     ``undo_splits`` with n_started splits and the pairs in undo takes faces and
     positions back, and the corner sets must be rebuilt). With ``partial`` the n_splits
     splits are the first of a frame that holds more (a client that stops inside a
-    frame): bytes and faces may remain, n_new_faces is a bound.
+    frame): bytes and faces may remain, n_new_faces is a bound. n_frame_splits
+    (>= n_splits) is how many splits the frame holds: the s of every one of them comes
+    first in data.
     """
     k = n_splits
     dec = rc.start_decoder(data, 0)
     context = np.zeros(SPLIT_CONTEXT, np.int64)
-    split_vertex = np.zeros(max(k, n_frame_splits), np.int32)
+    split_vertex = np.zeros(n_frame_splits, np.int32)
     status = _decode_split_vertices(dec, data, probs, n_from, split_vertex)
     relabel_counts = np.zeros(k, np.int64)
     relabel_faces = np.empty(max(16, 2 * k), np.int32)
@@ -1445,12 +1445,12 @@ def decode_connectivity(
     corners_walked = 0  # against FRAME_WORK_LIMIT
     face = faces_from
     face_end = faces_from + n_new_faces
-    for i in range(k if status == 0 else 0):
+    for i in range(0 if status else k):  # no split runs when its s was refused
         if dec[rc.BROKEN]:
             status = SHORT_DATA
             break
         t = n_from + i
-        _set_prefetch_ahead(faces, starts, counts, pool, quantised, split_vertex[:k], i)
+        _set_prefetch_ahead(faces, starts, counts, pool, quantised, split_vertex, i)
         s = np.int64(split_vertex[i])
         for d in range(3):
             old_positions[i, d] = quantised[s, d]

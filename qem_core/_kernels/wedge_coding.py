@@ -57,7 +57,6 @@ from .stream_coding import (
     SHORT_DATA,
     WEDGE_WORK_LIMIT,
     _append_face,
-    _bit_length,
     _distinct_sorted,
     _find,
     _grow,
@@ -107,8 +106,8 @@ def _symbol_class(symbol):
 @numba.njit(cache=True, nogil=True)
 def _row_context(rows, r, d):
     """The context block of value rows[r, d] (module docstring)."""
-    above = _bit_length(rows[r - 1, d]) if r > 0 else 0
-    left = _bit_length(rows[r, d - 1]) if d > 0 else 0
+    above = rc.bit_length(rows[r - 1, d]) if r > 0 else 0
+    left = rc.bit_length(rows[r, d - 1]) if d > 0 else 0
     block = (d * _ROW_CLASSES + min(above, _ROW_CLASSES - 1)) * _COLUMN_CLASSES
     return _ROW_SLOTS + (block + min(left, _COLUMN_CLASSES - 1)) * rc.INTEGER_SLOTS
 

@@ -330,6 +330,11 @@ export function decodeFrame(payload) {
   };
 }
 
+/** A frame whose coded splits ran out before its last split. */
+function failShort() {
+  fail("split frame: the coded splits end early (truncated or corrupt data)");
+}
+
 /** Every split's s of a frame, which it codes before the splits' other fields
  * (stream_coding._decode_split_vertices): the ahead decision and the gap, else the
  * bucket and the offset within it. */
@@ -338,7 +343,7 @@ function decodeSplitVertices(coder, probs, nFrom, k) {
   let previousS = -1; // the previous split's s: the build takes them in ascending sweeps
   let wasAhead = 0;
   for (let i = 0; i < k; i++) {
-    if (coder.broken) fail("split frame: the coded splits end early (truncated or corrupt data)");
+    if (coder.broken) failShort();
     const t = nFrom + i;
     if (t < 1) fail(`split ${t}: names a vertex that does not exist yet`);
     let s;
@@ -858,7 +863,6 @@ export class ProgressiveLevels {
     const out = this.indices;
     const coder = new RangeDecoder(frame.coded);
     const probs = this.contexts;
-    const short = () => fail("split frame: the coded splits end early (truncated or corrupt data)");
     const badThird = (t) => fail(`split ${t}: a third corner is not a neighbour of the split vertex`);
     let relabel = this.relabelOffsets[first];
     let face = frame.facesFrom;
@@ -872,7 +876,7 @@ export class ProgressiveLevels {
     let cornersWalked = 0;
     const splitVertex = decodeSplitVertices(coder, probs, nFrom, k);
     for (let i = 0; i < k; i++) {
-      if (coder.broken) short();
+      if (coder.broken) failShort();
       const t = nFrom + i;
       const s = splitVertex[i];
       state.gather(s);
@@ -965,7 +969,7 @@ export class ProgressiveLevels {
       this.levelFaces[first + i + 1] = face;
       this.relabelOffsets[first + i + 1] = relabel;
     }
-    if (coder.broken) short();
+    if (coder.broken) failShort();
     if (coder.position !== frame.coded.length) {
       fail("split frame: the coded splits hold bytes past the last split");
     }

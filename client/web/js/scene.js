@@ -1,5 +1,6 @@
-// three.js rendering of a ProgressiveLevels: one BufferGeometry over its full-size
-// buffers, grown and shrunk with setDrawRange; only the changed prefix is re-uploaded.
+// three.js rendering of a ProgressiveLevels: one BufferGeometry over a prefix of its
+// full-size buffers, grown and shrunk with setDrawRange; only the changed prefix is
+// re-uploaded.
 //
 // Positions stay grid integers; the mesh's transform maps them to the model's units
 // (origin + q * step), centred on the grid box. Flat shading takes normals from screen
@@ -12,6 +13,12 @@ import * as THREE from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
 
 const BACKGROUND_MIN_MS = 100; // background redraws at most this often
+// The GL buffers cover this many times the rows (and faces) the level has when they are
+// made, and are made again, larger, when the level outgrows them: three.js uploads a
+// buffer whole when it makes it, and the full mesh's (16 MB for 435k vertices) held
+// up the base mesh's first frame by some 50 ms on a two-core machine.
+const BUFFER_GROWTH = 4;
+const BUFFER_MIN_ROWS = 4096;
 
 export class MeshScene {
   /** Throws when the browser has no WebGL. */
@@ -91,22 +98,28 @@ export class MeshScene {
   }
 
   /** The geometry's attributes over the levels' buffers: positions and indices, or with
-   * wedges the render vertices' positions, attributes and indices. Called again when
-   * the render vertices' buffers were reallocated (they grow as pairs appear). */
+   * wedges the render vertices' positions, attributes and indices, each a prefix with
+   * room to grow (BUFFER_GROWTH). Called again when the level outgrows it, or when the
+   * render vertices' buffers were reallocated (they grow as pairs appear). */
   bindBuffers(geometry, levels) {
     const render = levels.wedges?.render;
-    const dynamic = (array, width) => {
-      const attribute = new THREE.BufferAttribute(array, width);
+    const positions = render ? render.positions : levels.positions;
+    const indices = render ? render.indices : levels.indices;
+    const room = (need, size) => Math.min(size, Math.max(BUFFER_MIN_ROWS, BUFFER_GROWTH * need));
+    this.rowRoom = room(render ? render.count : levels.level, positions.length / 3);
+    this.faceRoom = room(levels.nFaces, indices.length / 3);
+    const dynamic = (array, width, rows) => {
+      const attribute = new THREE.BufferAttribute(array.subarray(0, width * rows), width);
       attribute.setUsage(THREE.DynamicDrawUsage);
       return attribute;
     };
     if (geometry.getIndex()) geometry.dispose(); // frees the GL buffers of the old arrays
     for (const name of Object.keys(geometry.attributes)) geometry.deleteAttribute(name);
-    geometry.setAttribute("position", dynamic(render ? render.positions : levels.positions, 3));
+    geometry.setAttribute("position", dynamic(positions, 3, this.rowRoom));
     for (const [name, { array, width }] of Object.entries(render?.attributes ?? {})) {
-      geometry.setAttribute(name, dynamic(array, width));
+      geometry.setAttribute(name, dynamic(array, width, this.rowRoom));
     }
-    geometry.setIndex(dynamic(render ? render.indices : levels.indices, 1));
+    geometry.setIndex(dynamic(indices, 1, 3 * this.faceRoom));
     geometry.setDrawRange(0, 3 * levels.nFaces);
     this.generation = render?.generation;
   }
@@ -232,10 +245,11 @@ export class MeshScene {
     if (this.mesh && this.dirty) {
       const geometry = this.mesh.geometry;
       const render = levels.wedges?.render;
-      if (render && render.generation !== this.generation) this.bindBuffers(geometry, levels);
+      const rows = render ? render.count : levels.level;
+      const outgrown = rows > this.rowRoom || levels.nFaces > this.faceRoom;
+      if (outgrown || (render && render.generation !== this.generation)) this.bindBuffers(geometry, levels);
       // Rows past the level are never drawn: upload the prefix only. Split records
       // touch scattered rows below it, so the whole prefix goes.
-      const rows = render ? render.count : levels.level;
       for (const attribute of Object.values(geometry.attributes)) {
         attribute.clearUpdateRanges();
         attribute.addUpdateRange(0, attribute.itemSize * rows);

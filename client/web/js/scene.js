@@ -43,6 +43,8 @@ export class MeshScene {
     this.lastRender = -Infinity;
     this.timer = null; // a background redraw waiting its turn
     this.frameMs = 0; // how long the last frame took to draw
+    this.frameFaces = 0; // and how many faces it drew
+    this.faceMs = 0; // what a face added to a frame's time, from the last two frames
     this.onRendered = null; // (levels) => void, after each frame drawn
     new ResizeObserver(() => this.resize()).observe(canvas);
     this.resize();
@@ -221,15 +223,30 @@ export class MeshScene {
   /** The levels' buffers changed (new faces, another level): upload and redraw. A
    * `background` change (a stream's frame) waits so that drawing takes at most about a
    * fifth of the time: drawing a large mesh with a software GL must not take the CPU
-   * that the stream itself needs. */
+   * that the stream itself needs. Its wait is timed again at each change, as the mesh
+   * it would draw grows. */
   changed(background = false) {
     this.dirty = true;
-    this.requestRender(background ? Math.max(BACKGROUND_MIN_MS, 4 * this.frameMs) : 0);
+    if (!background) this.requestRender();
+    else if (!this.pending || this.timer) this.requestRender(this.backgroundInterval(), true);
   }
 
-  requestRender(minIntervalMs = 0) {
+  /** How long after the last frame a background redraw may come: four times what it
+   * would take, the last frame's time plus what the faces added since would add. A
+   * software GL's frame of dragon took 0.15 s at 1k faces, 0.4 s at 98k and 1.1 s at
+   * 871k; timed by the last frame alone, a redraw of the nearly full mesh came just
+   * before the stream's end and held the full one back by a second. A GPU's frame
+   * time hardly moves with the faces, and neither does the wait. */
+  backgroundInterval() {
+    const added = Math.max(0, (this.levels?.nFaces ?? 0) - this.frameFaces);
+    return Math.max(BACKGROUND_MIN_MS, 4 * (this.frameMs + added * this.faceMs));
+  }
+
+  /** Draw at the next animation frame, at least `minIntervalMs` after the last one; a
+   * frame already coming is kept, unless `retime` (a background redraw's wait). */
+  requestRender(minIntervalMs = 0, retime = false) {
     const wait = this.lastRender + minIntervalMs - performance.now();
-    if (this.pending && !(this.timer && wait <= 0)) return;
+    if (this.pending && !retime && !(this.timer && wait <= 0)) return;
     clearTimeout(this.timer); // a waiting background redraw is overtaken by this one
     this.timer = null;
     this.pending = true;
@@ -265,8 +282,16 @@ export class MeshScene {
     this.renderer.render(this.scene, this.camera);
     // The next animation frame comes once this one is drawn: its delay is the cost.
     const started = this.lastRender;
+    const faces = levels?.nFaces ?? 0;
     requestAnimationFrame(() => {
-      this.frameMs = performance.now() - started;
+      const ms = performance.now() - started;
+      if (this.frameFaces > 0 && faces > 1.1 * this.frameFaces) {
+        this.faceMs = Math.max(0, (ms - this.frameMs) / (faces - this.frameFaces));
+      }
+      this.frameMs = ms;
+      this.frameFaces = faces;
+      // A background redraw waiting was timed before this frame's time was known.
+      if (this.timer) this.requestRender(this.backgroundInterval(), true);
     });
     if (levels) this.onRendered?.(levels);
   }

@@ -24,10 +24,12 @@ from ._kernels.appearance import (
 )
 from ._kernels.assemble import (
     fill_splits,
+    forward_faces_first,
     gather_reversed_runs,
     level_corners,
     number_slots,
     order_faces,
+    third_corner_first,
 )
 from ._kernels.bounds import bounding_box
 from ._kernels.contract import (
@@ -485,11 +487,6 @@ def _assemble(run: ContractionRun, metadata: dict) -> tuple[ProgressiveMesh, np.
     face_corners = np.zeros((face_order.size, 3), np.int32)
     level_corners(cx.faces, level_of_face, level_of_slot, face_corners)
 
-    relabel_faces = np.zeros(int(record.relabel_end[j_count - 1]) if j_count else 0, np.int32)
-    relabel_offsets = np.zeros(j_count + 1, np.int64)
-    gather_reversed_runs(record.relabel, record.relabel_end, j_count, level_of_face,
-                         relabel_faces, relabel_offsets)
-
     split_vertex = np.zeros(j_count, np.int32)
     split_positions = np.zeros((j_count, 2, 3))
     split_cost = np.zeros(j_count)
@@ -497,7 +494,21 @@ def _assemble(run: ContractionRun, metadata: dict) -> tuple[ProgressiveMesh, np.
     fill_splits(record.a, record.position_a, record.position_b, record.cost,
                 record.killed_end, j_count, level_of_slot, n_base_faces, split_vertex,
                 split_positions, split_cost, level_faces)
-    wedge_arrays = (_wedge_splits(run, face_order, level_of_face)
+    # Each born face turned and put in its split's order (assemble.py), what follows
+    # numbered by the faces' new rows.
+    n_base = int(np.count_nonzero(cx.vertex_alive))
+    turns = np.zeros(face_order.size, np.int8)
+    third_corner_first(face_corners, level_faces, split_vertex, n_base, turns)
+    source = np.empty(face_order.size, np.int64)
+    forward_faces_first(face_corners, level_faces, split_vertex, n_base, source)
+    face_corners, face_order, turns = face_corners[source], face_order[source], turns[source]
+    level_of_face[face_order] = np.arange(face_order.size)
+
+    relabel_faces = np.zeros(int(record.relabel_end[j_count - 1]) if j_count else 0, np.int32)
+    relabel_offsets = np.zeros(j_count + 1, np.int64)
+    gather_reversed_runs(record.relabel, record.relabel_end, j_count, level_of_face,
+                         relabel_faces, relabel_offsets)
+    wedge_arrays = (_wedge_splits(run, face_order, level_of_face, turns)
                     if cx.wedge_values.shape[0] else {})
     pm = ProgressiveMesh(
         base_vertices=np.ascontiguousarray(cx.vertices[cx.vertex_alive.astype(bool)]),
@@ -529,11 +540,12 @@ def _offsets(split_of_row: np.ndarray, j_count: int) -> np.ndarray:
                           ).astype(np.int64)
 
 
-def _wedge_splits(run: ContractionRun, face_order: np.ndarray,
-                  level_of_face: np.ndarray) -> dict:
+def _wedge_splits(run: ContractionRun, face_order: np.ndarray, level_of_face: np.ndarray,
+                  turns: np.ndarray) -> dict:
     """The wedge side of the progressive mesh (see `ProgressiveMesh`), from the log of
     `appearance.merge_wedges`: wedges renumbered like vertices (the survivors of the
-    whole run first, then those retired by the last contraction, and so on back)."""
+    whole run first, then those retired by the last contraction, and so on back), each
+    face's corners turned as its vertices were (``turns``, `third_corner_first`)."""
     record, cx, j_count = run
     rows, split_of = _reversed_run_rows(record.wedge_log_end, j_count)
     log, log_values = record.wedge_log[rows], record.wedge_log_values[rows]
@@ -547,16 +559,19 @@ def _wedge_splits(run: ContractionRun, face_order: np.ndarray,
 
     relabel_rows, relabel_split = _reversed_run_rows(record.wedge_relabel_end, j_count)
     relabel = record.wedge_relabel[relabel_rows].astype(np.int64)
+    relabel_face = level_of_face[relabel[:, 0]]
+    turned = (np.arange(3)[None, :] + turns[:, None]) % 3
+    face_wedges = np.take_along_axis(cx.face_wedges[face_order], turned, axis=1)
     return {
         "base_wedge_values": cx.wedge_values[base_wedges].astype(np.float32),
-        "face_wedge_corners": level_of_wedge[cx.face_wedges[face_order]].astype(np.int32),
+        "face_wedge_corners": level_of_wedge[face_wedges].astype(np.int32),
         "wedge_update_offsets": _offsets(split_of[~retired], j_count),
         "wedge_update_ids": level_of_wedge[log[~retired, 0]].astype(np.int32),
         "wedge_update_values": log_values[~retired].astype(np.float32),
         "wedge_new_offsets": _offsets(split_of[retired], j_count),
         "wedge_new_values": log_values[retired].astype(np.float32),
         "wedge_relabel_offsets": _offsets(relabel_split, j_count),
-        "wedge_relabel_corners": level_of_face[relabel[:, 0]] * 3 + relabel[:, 1],
+        "wedge_relabel_corners": relabel_face * 3 + (relabel[:, 1] - turns[relabel_face]) % 3,
         "wedge_relabel_to": level_of_wedge[relabel[:, 2]].astype(np.int32),
     }
 

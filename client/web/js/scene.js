@@ -13,6 +13,9 @@ import * as THREE from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
 
 const BACKGROUND_MIN_MS = 100; // background redraws at most this often
+// A frame slower than this is taken as bound by drawing, whose time grows with the faces;
+// a faster one as bound by the display's refresh, whose jitter says nothing of them.
+const DRAW_BOUND_MS = 50;
 // The GL buffers cover this many times the rows (and faces) the level has when they are
 // made, and are made again, larger, when the level outgrows them: three.js uploads a
 // buffer whole when it makes it, and the full mesh's (16 MB for 435k vertices) held
@@ -236,10 +239,12 @@ export class MeshScene {
    * software GL's frame of dragon took 0.15 s at 1k faces, 0.4 s at 98k and 1.1 s at
    * 871k; timed by the last frame alone, a redraw of the nearly full mesh came just
    * before the stream's end and held the full one back by a second. A GPU's frame
-   * time hardly moves with the faces, and neither does the wait. */
+   * time hardly moves with the faces (a dropped frame would make it seem to), and the
+   * wait does not either. */
   backgroundInterval() {
     const added = Math.max(0, (this.levels?.nFaces ?? 0) - this.frameFaces);
-    return Math.max(BACKGROUND_MIN_MS, 4 * (this.frameMs + added * this.faceMs));
+    const faceMs = this.frameMs > DRAW_BOUND_MS ? this.faceMs : 0;
+    return Math.max(BACKGROUND_MIN_MS, 4 * (this.frameMs + added * faceMs));
   }
 
   /** Draw at the next animation frame, at least `minIntervalMs` after the last one; a

@@ -24,12 +24,11 @@ from ._kernels.appearance import (
 )
 from ._kernels.assemble import (
     fill_splits,
-    forward_faces_first,
     gather_reversed_runs,
     level_corners,
     number_slots,
     order_faces,
-    third_corner_first,
+    turn_born_faces,
 )
 from ._kernels.bounds import bounding_box
 from ._kernels.contract import (
@@ -498,9 +497,8 @@ def _assemble(run: ContractionRun, metadata: dict) -> tuple[ProgressiveMesh, np.
     # numbered by the faces' new rows.
     n_base = int(np.count_nonzero(cx.vertex_alive))
     turns = np.zeros(face_order.size, np.int8)
-    third_corner_first(face_corners, level_faces, split_vertex, n_base, turns)
     source = np.empty(face_order.size, np.int64)
-    forward_faces_first(face_corners, level_faces, split_vertex, n_base, source)
+    turn_born_faces(face_corners, level_faces, split_vertex, n_base, turns, source)
     face_corners, face_order, turns = face_corners[source], face_order[source], turns[source]
     level_of_face[face_order] = np.arange(face_order.size)
 
@@ -545,7 +543,7 @@ def _wedge_splits(run: ContractionRun, face_order: np.ndarray, level_of_face: np
     """The wedge side of the progressive mesh (see `ProgressiveMesh`), from the log of
     `appearance.merge_wedges`: wedges renumbered like vertices (the survivors of the
     whole run first, then those retired by the last contraction, and so on back), each
-    face's corners turned as its vertices were (``turns``, `third_corner_first`)."""
+    face's corners turned as its vertices were (``turns``, `turn_born_faces`)."""
     record, cx, j_count = run
     rows, split_of = _reversed_run_rows(record.wedge_log_end, j_count)
     log, log_values = record.wedge_log[rows], record.wedge_log_values[rows]

@@ -114,15 +114,27 @@ def _fill_splits(survivor, position_a, position_b, cost, killed_end, n_contracti
 fill_splits = numba.njit(cache=True, parallel=True)(_fill_splits)
 
 
-def _third_corner_first(face_corners, level_faces, split_vertex, n_base, turns):
-    """Turn each face born at a split (rows level_faces[0]: on) so that its corner other
-    than the split's s and t comes first, in place; turns (F,) int8 receives by how many
-    places each row turned (0 for base faces, and for a face without both s and t).
+@numba.njit(cache=True, inline="always")
+def _orientation(u, w, s, t):
+    """0 when a face's corners u, w (in its order) are s then t, 1 for t then s, else 2."""
+    return 0 if (u == s and w == t) else (1 if (u == t and w == s) else 2)
 
-    Why: which corner of a face is its first is the input file's accident, and the split
-    stream codes it (log2 3 bits a face: 0.40 B of dragon's 6.36 B a split); with every
-    face turned alike the stream's adaptive codes of it cost next to nothing. A turn
-    keeps the face's orientation and its corners."""
+
+def _turn_born_faces(face_corners, level_faces, split_vertex, n_base, turns, source):
+    """Turn each face born at a split (rows level_faces[0]: on) in place so that its
+    corner other than the split's s and t comes first; turns (F,) int8 receives by how
+    many places each row turned (0 for base faces, and for a face without both s and
+    t). Then source (F,) int64 receives the row each row takes so that each split's faces
+    come as (x, s, t) first, then (x, t, s), then any other, each kind in the order it
+    had (base rows stay).
+
+    Why: which corner of a face is its first, and in which order a split lists its
+    faces, are the input file's and the run's accidents, and the split stream codes them
+    (a face's code names its rotation and orientation, against the face before it: 0.53 B
+    of dragon's 6.36 B a split); with every face turned and listed alike those codes cost
+    next to nothing. A turn keeps the face's orientation and its corners."""
+    for f in range(level_faces[0]):
+        source[f] = f
     for k in numba.prange(split_vertex.shape[0]):
         s = split_vertex[k]
         t = n_base + k
@@ -130,44 +142,22 @@ def _third_corner_first(face_corners, level_faces, split_vertex, n_base, turns):
             a = face_corners[f, 0]
             b = face_corners[f, 1]
             c = face_corners[f, 2]
-            turn = 0
-            if (b == s and c == t) or (b == t and c == s):
-                turn = 0
-            elif (c == s and a == t) or (c == t and a == s):
+            turn = 0  # also when (b, c) are s and t: a comes first already
+            if _orientation(b, c, s, t) < 2:
+                pass
+            elif _orientation(c, a, s, t) < 2:
                 turn = 1
-            elif (a == s and b == t) or (a == t and b == s):
-                turn = 2
-            turns[f] = turn
-            if turn == 1:
                 face_corners[f, 0], face_corners[f, 1], face_corners[f, 2] = b, c, a
-            elif turn == 2:
+            elif _orientation(a, b, s, t) < 2:
+                turn = 2
                 face_corners[f, 0], face_corners[f, 1], face_corners[f, 2] = c, a, b
-
-
-third_corner_first = numba.njit(cache=True, parallel=True)(_third_corner_first)
-
-
-def _forward_faces_first(face_corners, level_faces, split_vertex, n_base, source):
-    """source (F,) int64, out: the row each row takes so that each split's faces
-    (turned by `third_corner_first`) come as (x, s, t) first, then (x, t, s), then any
-    other, each kind in the order it had (base rows stay).
-
-    Why: the split stream codes each face's orientation against the one before it, and
-    in the order the run killed them the two kinds alternate at random (0.12 B a split
-    of bunny's 7.74; ordered, 0.01)."""
-    for f in range(level_faces[0]):
-        source[f] = f
-    for k in numba.prange(split_vertex.shape[0]):
-        s = split_vertex[k]
-        t = n_base + k
+            turns[f] = turn
         at = level_faces[k]
         for kind in range(3):
             for f in range(level_faces[k], level_faces[k + 1]):
-                b = face_corners[f, 1]
-                c = face_corners[f, 2]
-                if kind == (0 if (b == s and c == t) else (1 if (b == t and c == s) else 2)):
+                if _orientation(face_corners[f, 1], face_corners[f, 2], s, t) == kind:
                     source[at] = f
                     at += 1
 
 
-forward_faces_first = numba.njit(cache=True, parallel=True)(_forward_faces_first)
+turn_born_faces = numba.njit(cache=True, parallel=True)(_turn_born_faces)

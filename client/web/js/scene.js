@@ -23,6 +23,10 @@ const DRAW_BOUND_MS = 50;
 const BUFFER_GROWTH = 4;
 const BUFFER_MIN_ROWS = 4096;
 
+/** The rows of the drawn buffers that the level uses: its vertices, or with wedges its
+ * render vertices. */
+const levelRows = (levels) => levels.wedges?.render.count ?? levels.level;
+
 export class MeshScene {
   /** Throws when the browser has no WebGL. */
   constructor(canvas) {
@@ -111,7 +115,7 @@ export class MeshScene {
     const positions = render ? render.positions : levels.positions;
     const indices = render ? render.indices : levels.indices;
     const room = (need, size) => Math.min(size, Math.max(BUFFER_MIN_ROWS, BUFFER_GROWTH * need));
-    this.rowRoom = room(render ? render.count : levels.level, positions.length / 3);
+    this.rowRoom = room(levelRows(levels), positions.length / 3);
     this.faceRoom = room(levels.nFaces, indices.length / 3);
     const dynamic = (array, width, rows) => {
       const attribute = new THREE.BufferAttribute(array.subarray(0, width * rows), width);
@@ -267,7 +271,7 @@ export class MeshScene {
     if (this.mesh && this.dirty) {
       const geometry = this.mesh.geometry;
       const render = levels.wedges?.render;
-      const rows = render ? render.count : levels.level;
+      const rows = levelRows(levels);
       const outgrown = rows > this.rowRoom || levels.nFaces > this.faceRoom;
       if (outgrown || (render && render.generation !== this.generation)) this.bindBuffers(geometry, levels);
       // Rows past the level are never drawn: upload the prefix only. Split records

@@ -726,6 +726,41 @@ def assert_levels_on_screen_are_served(page, http: httpx.Client, url: str, level
         )
 
 
+def test_viewer_draws_off_screen_without_a_gpu(server, tmp_path):
+    """With a GL that draws on the CPU (this Chromium's, started without a GPU), frames
+    are drawn into a render target and copied to the canvas once finished, so that the
+    compositor's readback does not wait for them: every frame so drawn here, the mesh
+    must reach the screen shaded and the levels stay the server's."""
+    require_web_packages()
+    with server.client() as qem:
+        info = qem.wait_ready(qem.upload(shared_mesh("bunny.ply")), timeout=READY_TIMEOUT_MS / 1000)
+    with chromium_page(tmp_path / "profile") as page, httpx.Client(timeout=60) as http:
+        page.goto(f"{server.url}/")
+        page.wait_for_function("() => window.qemViewer?.state.softwareGL !== null")
+        if not page.evaluate("window.qemViewer.state.softwareGL"):
+            pytest.skip("this Chromium draws WebGL on a GPU: frames go straight to the canvas")
+        page.evaluate("window.qemViewer.drawOffScreenAbove(0)")
+        state = open_at_full_detail(page, server.url, info["id"])
+        assert state["failure"] is None and state["framesOffScreen"] >= 2  # base, full
+        url = f"{server.url}/v1/meshes/{info['id']}"
+        for n in (info["vertices"], 1000, info["min_vertices"], info["vertices"]):
+            page.evaluate("(n) => window.qemViewer.setLevel(n)", n)
+            assert page.evaluate("window.qemViewer.levelDigest()") == served_digest(http, url, n)[0]
+        page.wait_for_function(
+            "(n) => window.qemViewer.state.framesOffScreen > n", arg=state["framesOffScreen"]
+        )
+        page.evaluate(
+            "() => new Promise((done) => requestAnimationFrame(() => setTimeout(done, 500)))"
+        )
+        for overlay in ("#hud", "#controls"):
+            page.eval_on_selector(overlay, "node => { node.style.visibility = 'hidden'; }")
+        shot = page.locator("#canvas").screenshot()
+        stats = page.evaluate(_IMAGE_STATS, base64.b64encode(shot).decode())
+        assert 0.02 < stats["away"] < 0.95, stats  # the copy reached the canvas
+        assert stats["colours"] > 16, stats
+        assert page.errors == []
+
+
 def test_viewer_shows_texture_and_colours_while_it_refines(server, appearance_meshes, tmp_path):
     require_web_packages()
     with chromium_page(tmp_path / "profile") as page, httpx.Client(timeout=60) as http:

@@ -318,11 +318,15 @@ async function load(source) {
     $("controls").hidden = false;
     updateStats();
     current.streaming = true;
+    const streamStarted = performance.now();
     const decoding = new WorkerDecoder(levels, baseData, {
       onRecord: () => {
         if (current !== view) return;
         if (levels.level < current.want) levels.setLevel(current.want);
-        scene.changed(true);
+        // When the stream is due to end, at the pace it has kept so far.
+        const done = levels.received - levels.nBase;
+        const endsInMs = ((performance.now() - streamStarted) * (levels.nFull - levels.received)) / done;
+        scene.changed(true, done > 0 ? endsInMs : Infinity);
         updateStats();
       },
     });
@@ -451,7 +455,7 @@ function scheduleErrorLookup(current) {
   }, ERROR_DELAY_MS);
 }
 
-function onRendered(levels) {
+function onRendered(levels, level) {
   const current = view;
   if (!current || current.levels !== levels) return;
   const elapsed = performance.now() - current.started;
@@ -460,7 +464,7 @@ function onRendered(levels) {
     current.baseShownMs = elapsed;
     changed = true;
   }
-  if (current.fullShownMs == null && levels.level === levels.nFull) {
+  if (current.fullShownMs == null && level === levels.nFull) {
     current.fullShownMs = elapsed;
     changed = true;
   }
@@ -520,7 +524,13 @@ window.qemViewer = {
       attributes: levels?.wedges?.grid.names ?? [], // appearance carried by the wedges
       renderVertices: levels?.wedges?.render.count ?? null,
       textureShown: scene?.textureShown ?? false,
+      softwareGL: scene?.softwareGL ?? null, // the GL draws on the CPU
+      framesOffScreen: scene?.framesOffScreen ?? 0, // frames drawn off screen (scene.js)
     };
+  },
+  /** Draw a software GL's frames off screen when they would take over `ms` (0: all). */
+  drawOffScreenAbove(ms) {
+    if (scene) scene.offscreenMs = ms;
   },
   setLevel: setWant,
   levelDigest,

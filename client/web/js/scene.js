@@ -11,17 +11,28 @@
 
 import * as THREE from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
+import { FullScreenQuad } from "three/addons/postprocessing/Pass.js";
 
 const BACKGROUND_MIN_MS = 100; // background redraws at most this often
 // A frame slower than this is taken as bound by drawing, whose time grows with the faces;
 // a faster one as bound by the display's refresh, whose jitter says nothing of them.
 const DRAW_BOUND_MS = 50;
+// What a face adds to a software GL's frame until two frames have measured it
+// (SwiftShader at 1200 x 800 on two cores: 0.8-1.3 s for 871k faces).
+const SOFTWARE_FACE_MS = 1e-3;
+// A software GL's frame expected to take longer than this is drawn off screen
+// (drawOffScreen): drawn to the canvas, the page would freeze for its whole time.
+const OFFSCREEN_MS = 200;
+// The GL renderers that draw on the CPU, as WEBGL_debug_renderer_info names them.
+const SOFTWARE_RENDERER = /SwiftShader|llvmpipe|softpipe|software/i;
 // The GL buffers cover this many times the rows (and faces) the level has when they are
 // made, and are made again, larger, when the level outgrows them: three.js uploads a
 // buffer whole when it makes it, and the full mesh's (16 MB for 435k vertices) held
 // up the base mesh's first frame by some 50 ms on a two-core machine.
 const BUFFER_GROWTH = 4;
 const BUFFER_MIN_ROWS = 4096;
+// How often a frame drawn off screen is asked whether the GL has finished it.
+const FENCE_POLL_MS = 4;
 
 /** The rows of the drawn buffers that the level uses: its vertices, or with wedges its
  * render vertices. */
@@ -52,7 +63,13 @@ export class MeshScene {
     this.frameMs = 0; // how long the last frame took to draw
     this.frameFaces = 0; // and how many faces it drew
     this.faceMs = 0; // what a face added to a frame's time, from the last two frames
-    this.onRendered = null; // (levels) => void, after each frame drawn
+    this.onRendered = null; // (levels, level) => void, after each frame shown: the level drawn
+    this.drawing = false; // a frame drawn off screen that the GL has not finished
+    this.target = null; // where such frames are drawn (offscreenTarget)
+    this.copy = null; // and the quad that copies them to the canvas once finished
+    this.softwareGL = drawsOnTheCpu(this.renderer.getContext());
+    this.offscreenMs = OFFSCREEN_MS; // tests set 0 to draw every frame off screen
+    this.framesOffScreen = 0; // frames drawn by drawOffScreen, for tests and benchmarks
     new ResizeObserver(() => this.resize()).observe(canvas);
     this.resize();
   }
@@ -231,11 +248,33 @@ export class MeshScene {
    * `background` change (a stream's frame) waits so that drawing takes at most about a
    * fifth of the time: drawing a large mesh with a software GL must not take the CPU
    * that the stream itself needs. Its wait is timed again at each change, as the mesh
-   * it would draw grows. */
-  changed(background = false) {
+   * it would draw grows; a redraw that would take more than half of `endsInMs` (when
+   * the stream is due to end) is not made, since it shares the CPU with the stream's
+   * decoding: the stream's end draws the full mesh. */
+  changed(background = false, endsInMs = Infinity) {
     this.dirty = true;
     if (!background) this.requestRender();
+    else if (2 * this.frameCost() > endsInMs) this.cancelBackground();
     else if (!this.pending || this.timer) this.requestRender(this.backgroundInterval(), true);
+  }
+
+  /** What a frame of the level as it is now would take to draw: the last frame's time plus
+   * what the faces added since would add. A software GL's frame grows with the faces; a
+   * GPU's hardly does, unless its frames are bound by drawing. */
+  frameCost() {
+    const added = Math.max(0, (this.levels?.nFaces ?? 0) - this.frameFaces);
+    if (this.softwareGL) return this.frameMs + added * (this.faceMs || SOFTWARE_FACE_MS);
+    return this.frameMs + (this.frameMs > DRAW_BOUND_MS ? added * this.faceMs : 0);
+  }
+
+  /** Drop a background redraw still waiting its turn: a redraw of a software GL that
+   * would still be drawing when the stream ends holds the full mesh's frame back by
+   * its whole time (a second for dragon), and takes the CPU the stream's decoder needs. */
+  cancelBackground() {
+    if (!this.timer) return;
+    clearTimeout(this.timer);
+    this.timer = null;
+    this.pending = false;
   }
 
   /** How long after the last frame a background redraw may come: four times what it
@@ -246,9 +285,7 @@ export class MeshScene {
    * time hardly moves with the faces (a dropped frame would make it seem to), and the
    * wait does not either. */
   backgroundInterval() {
-    const added = Math.max(0, (this.levels?.nFaces ?? 0) - this.frameFaces);
-    const faceMs = this.frameMs > DRAW_BOUND_MS ? this.faceMs : 0;
-    return Math.max(BACKGROUND_MIN_MS, 4 * (this.frameMs + added * faceMs));
+    return Math.max(BACKGROUND_MIN_MS, 4 * this.frameCost());
   }
 
   /** Draw at the next animation frame, at least `minIntervalMs` after the last one; a
@@ -265,6 +302,11 @@ export class MeshScene {
   }
 
   render() {
+    if (this.drawing) {
+      // The last frame is still being drawn: this one follows it, not queues behind it.
+      requestAnimationFrame(() => this.render());
+      return;
+    }
     this.pending = false;
     this.lastRender = performance.now();
     const levels = this.levels;
@@ -288,20 +330,88 @@ export class MeshScene {
       geometry.setDrawRange(0, 3 * levels.nFaces);
       this.dirty = false;
     }
-    this.renderer.render(this.scene, this.camera);
-    // The next animation frame comes once this one is drawn: its delay is the cost.
     const started = this.lastRender;
     const faces = levels?.nFaces ?? 0;
-    requestAnimationFrame(() => {
-      const ms = performance.now() - started;
-      if (this.frameFaces > 0 && faces > 1.1 * this.frameFaces) {
-        this.faceMs = Math.max(0, (ms - this.frameMs) / (faces - this.frameFaces));
-      }
-      this.frameMs = ms;
-      this.frameFaces = faces;
-      // A background redraw waiting was timed before this frame's time was known.
-      if (this.timer) this.requestRender(this.backgroundInterval(), true);
-    });
-    if (levels) this.onRendered?.(levels);
+    const level = levels?.level; // the levels may move on while the frame is drawn
+    // The frame counts as shown at the next animation frame after it reaches the canvas
+    // (as a page timing a static file's first frame counts it); its cost is the time
+    // from here to then.
+    const shown = () =>
+      requestAnimationFrame(() => {
+        const ms = performance.now() - started;
+        if (this.frameFaces > 0 && faces > 1.1 * this.frameFaces) {
+          this.faceMs = Math.max(0, (ms - this.frameMs) / (faces - this.frameFaces));
+        }
+        this.frameMs = ms;
+        this.frameFaces = faces;
+        // A background redraw waiting was timed before this frame's time was known.
+        if (this.timer) this.requestRender(this.backgroundInterval(), true);
+        if (levels) this.onRendered?.(levels, level);
+      });
+    if (this.softwareGL && this.frameCost() > this.offscreenMs) this.drawOffScreen(shown);
+    else {
+      this.renderer.render(this.scene, this.camera);
+      shown();
+    }
   }
+
+  /** Draw the frame into a render target and copy it to the canvas once the GL has
+   * finished it, then call `shown`. A frame drawn straight to the canvas is read back
+   * by the browser's compositor when it composites without a GPU (a software GL), and
+   * the page's main thread waits for that: a second for dragon's full mesh, while the
+   * page can take no input. Off screen the page waits only for the copy, provided no
+   * draw is queued ahead of the readback (below). */
+  drawOffScreen(shown) {
+    const renderer = this.renderer;
+    const target = this.offscreenTarget();
+    renderer.setRenderTarget(target);
+    renderer.render(this.scene, this.camera);
+    renderer.setRenderTarget(null);
+    const gl = renderer.getContext();
+    const fence = gl.fenceSync(gl.SYNC_GPU_COMMANDS_COMPLETE, 0);
+    gl.flush();
+    this.drawing = true;
+    this.framesOffScreen++;
+    const poll = () => {
+      if (gl.getSyncParameter(fence, gl.SYNC_STATUS) !== gl.SIGNALED) {
+        setTimeout(poll, FENCE_POLL_MS);
+        return;
+      }
+      gl.deleteSync(fence);
+      if (this.target !== target) {
+        this.drawing = false;
+        return; // resized meanwhile: a new frame is coming
+      }
+      this.copy.render(renderer);
+      // The compositor reads the canvas back at the next frame's commit, and a draw
+      // issued before that commit is queued ahead of the readback: the page would wait
+      // for the whole next frame. A task posted from the next animation frame runs
+      // after its commit, so the next frame's draw waits for that.
+      requestAnimationFrame(() => setTimeout(() => (this.drawing = false)));
+      shown();
+    };
+    setTimeout(poll, FENCE_POLL_MS);
+  }
+
+  /** A multisampled render target the size of the canvas's drawing buffer, kept while
+   * that size holds. */
+  offscreenTarget() {
+    const size = this.renderer.getDrawingBufferSize(new THREE.Vector2());
+    if (this.target && this.target.width === size.x && this.target.height === size.y) return this.target;
+    this.target?.dispose();
+    this.target = new THREE.WebGLRenderTarget(size.x, size.y, { samples: 4 });
+    this.target.texture.colorSpace = THREE.SRGBColorSpace;
+    this.copy ??= new FullScreenQuad(new THREE.MeshBasicMaterial({ depthTest: false, depthWrite: false }));
+    this.copy.material.map = this.target.texture;
+    this.copy.material.needsUpdate = true;
+    return this.target;
+  }
+}
+
+/** Whether the GL draws on the CPU (a browser without a GPU, or started without one):
+ * there the compositor reads the canvas back, and a frame's time grows with its faces. */
+function drawsOnTheCpu(gl) {
+  const info = gl.getExtension("WEBGL_debug_renderer_info");
+  const renderer = gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER);
+  return SOFTWARE_RENDERER.test(String(renderer));
 }

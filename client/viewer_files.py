@@ -18,6 +18,7 @@ VIEWER_PACKAGES = (
     "three/build/three.module.js",
     "three/build/three.core.js",
     "three/examples/jsm/controls/OrbitControls.js",
+    "three/examples/jsm/postprocessing/Pass.js",  # FullScreenQuad: off-screen frames' copy
     "three/LICENSE",
     "@msgpack/msgpack/dist.esm",
     "@msgpack/msgpack/LICENSE",

@@ -325,8 +325,8 @@ async function load(source) {
         if (levels.level < current.want) levels.setLevel(current.want);
         // When the stream is due to end, at the pace it has kept so far.
         const done = levels.received - levels.nBase;
-        const endsInMs = ((performance.now() - streamStarted) * (levels.nFull - levels.received)) / done;
-        scene.changed(true, done > 0 ? endsInMs : Infinity);
+        const left = levels.nFull - levels.received;
+        scene.changed(true, done > 0 ? ((performance.now() - streamStarted) * left) / done : Infinity);
         updateStats();
       },
     });

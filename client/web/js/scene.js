@@ -65,6 +65,7 @@ export class MeshScene {
     this.faceMs = 0; // what a face added to a frame's time, from the last two frames
     this.onRendered = null; // (levels, level) => void, after each frame shown: the level drawn
     this.drawing = false; // a frame drawn off screen that the GL has not finished
+    this.waiting = false; // a frame asked for while one was drawing: it comes after
     this.target = null; // where such frames are drawn (offscreenTarget)
     this.copy = null; // and the quad that copies them to the canvas once finished
     this.softwareGL = drawsOnTheCpu(this.renderer.getContext());
@@ -278,12 +279,11 @@ export class MeshScene {
   }
 
   /** How long after the last frame a background redraw may come: four times what it
-   * would take, the last frame's time plus what the faces added since would add. A
-   * software GL's frame of dragon took 0.15 s at 1k faces, 0.4 s at 98k and 1.1 s at
-   * 871k; timed by the last frame alone, a redraw of the nearly full mesh came just
-   * before the stream's end and held the full one back by a second. A GPU's frame
-   * time hardly moves with the faces (a dropped frame would make it seem to), and the
-   * wait does not either. */
+   * would take (frameCost). A software GL's frame of dragon took 0.15 s at 1k faces,
+   * 0.4 s at 98k and 1.1 s at 871k; timed by the last frame alone, a redraw of the
+   * nearly full mesh came just before the stream's end and held the full one back by a
+   * second. A GPU's frame time hardly moves with the faces (a dropped frame would make
+   * it seem to), and the wait does not either. */
   backgroundInterval() {
     return Math.max(BACKGROUND_MIN_MS, 4 * this.frameCost());
   }
@@ -303,8 +303,9 @@ export class MeshScene {
 
   render() {
     if (this.drawing) {
-      // The last frame is still being drawn: this one follows it, not queues behind it.
-      requestAnimationFrame(() => this.render());
+      // The last frame is still being drawn: this one follows it (finishDrawing), rather
+      // than queue behind it.
+      this.waiting = true;
       return;
     }
     this.pending = false;
@@ -378,19 +379,24 @@ export class MeshScene {
         return;
       }
       gl.deleteSync(fence);
-      if (this.target !== target) {
-        this.drawing = false;
-        return; // resized meanwhile: a new frame is coming
-      }
+      if (this.target !== target) return this.finishDrawing(); // resized: a new frame is due
       this.copy.render(renderer);
       // The compositor reads the canvas back at the next frame's commit, and a draw
       // issued before that commit is queued ahead of the readback: the page would wait
       // for the whole next frame. A task posted from the next animation frame runs
       // after its commit, so the next frame's draw waits for that.
-      requestAnimationFrame(() => setTimeout(() => (this.drawing = false)));
+      requestAnimationFrame(() => setTimeout(() => this.finishDrawing()));
       shown();
     };
     setTimeout(poll, FENCE_POLL_MS);
+  }
+
+  /** The off-screen frame is done with: draw the frame asked for meanwhile, if any. */
+  finishDrawing() {
+    this.drawing = false;
+    if (!this.waiting) return;
+    this.waiting = false;
+    requestAnimationFrame(() => this.render());
   }
 
   /** A multisampled render target the size of the canvas's drawing buffer, kept while

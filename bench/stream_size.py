@@ -1,12 +1,13 @@
 """Size of the whole vertex-split stream against single-rate encodings (issues 3 and 4).
 
     python -m bench.stream_size [--meshes spot.ply dragon.ply ...] [--bits 16]
-        [--draco-levels 1 7 10] [--timeout S]
+        [--draco-levels 1 7 10] [--qem-option name=value ...] [--timeout S]
 
 For each mesh (default: the seven shared meshes, and spot.obj with its UVs), in a child
 process (`bench.measure.measure_in_child`): `qem_core.build_mesh(qem_core.load_mesh(path))`
 as the server builds an upload (appearance attributes kept: spot.obj's UVs,
-airplane_colored.ply's colours), then
+airplane_colored.ply's colours), with the build options of --qem-option (defaults
+otherwise), then
 
 - the split stream from the base mesh to the full mesh, `qem_core.stream.encode_split_frames`
   on a --bits grid: total bytes (frame headers included), bytes per vertex split, and the
@@ -65,11 +66,11 @@ TARGET_BYTES_PER_SPLIT = 10.0
 TARGET_DRACO_FACTOR = 1.5
 
 
-def build_as_served(path: str):
+def build_as_served(path: str, options: dict[str, Any] | None = None):
     """`qem_core.build_mesh` of a mesh file, appearance attributes kept (in the child)."""
     import qem_core
 
-    return qem_core.build_mesh(qem_core.load_mesh(path))
+    return qem_core.build_mesh(qem_core.load_mesh(path), options)
 
 
 def stream_sizes(progressive_mesh, bits: int) -> dict[str, Any]:
@@ -163,12 +164,17 @@ def _single_rate_sizes(path: Path, bits: int, draco_levels: Sequence[int]) -> di
 
 
 def measure_stream_size(
-    path: Path, bits: int, draco_levels: Sequence[int], timeout_s: float | None
+    path: Path,
+    bits: int,
+    draco_levels: Sequence[int],
+    timeout_s: float | None,
+    options: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """One mesh's JSON entry: stream, base, PLY and Draco sizes and their ratios."""
+    """One mesh's JSON entry: stream, base, PLY and Draco sizes and their ratios, of a
+    build with ``options`` (the defaults when None)."""
     built = measure_or_fail(
         build_as_served,
-        (str(path),),
+        (str(path), options),
         preload=("qem_core",),
         then=stream_sizes,
         then_args=(bits,),
@@ -179,6 +185,7 @@ def measure_stream_size(
         "measured_at": now(),
         "status": built.status,
         "bits": bits,
+        "options": options or {},
         **_single_rate_sizes(path, bits, draco_levels),
     }
     if not built.ok:
@@ -209,6 +216,12 @@ def measure_stream_size(
     return entry
 
 
+def _options_phrase(options: dict[str, Any] | None) -> str:
+    if not options:
+        return " (default options)"
+    return " with " + ", ".join(f"`{name}={value}`" for name, value in sorted(options.items()))
+
+
 def _count(value: int | None) -> str:
     return "-" if value is None else f"{value:,}"
 
@@ -228,9 +241,10 @@ def write_stream_size_report(
         "",
         "Sizes do not depend on the load; only the encode times do.",
         "",
-        "Each mesh is built as the server builds an upload, `qem_core.build_mesh`, which "
-        "keeps appearance attributes (spot.obj's UVs, airplane_colored.ply's colours; "
-        "spot.ply has none). Stream: `qem_core.stream.encode_split_frames(pm, n_base, "
+        "Each mesh is built as the server builds an upload, `qem_core.build_mesh`"
+        f"{_options_phrase(settings.get('options'))}, which keeps appearance attributes "
+        "(spot.obj's UVs, airplane_colored.ply's colours; spot.ply has none). Stream: "
+        "`qem_core.stream.encode_split_frames(pm, n_base, "
         f"n_full, {bits})`, every frame with its 4-byte length; its wedge keys (stream "
         "version 3, range-coded in each frame's `wedges` bytes) carry the attributes: "
         "*wedge* is what they add (the frames sealed without them, the difference "
@@ -405,8 +419,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--meshes", nargs="+", default=list(DEFAULT_STREAM_MESHES))
     parser.add_argument("--bits", type=int, default=DEFAULT_BITS, help="grid bits per axis")
     parser.add_argument("--draco-levels", type=int, nargs="+", default=list(DEFAULT_DRACO_LEVELS))
+    parser.add_argument(
+        "--qem-option", action="append", default=[], metavar="NAME=VALUE",
+        help="a qem_core.BuildOptions field for the builds; repeat to combine",
+    )
     arguments = list(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(arguments)
+    try:
+        options = qem_lod.parse_option_assignments(args.qem_option)
+        qem_lod.validate_option_values(options)
+    except ValueError as error:
+        parser.error(str(error))
     qem_note = qem_lod.qem_unavailable_reason()
     if qem_note is not None:
         progress(f"qem-lod: {qem_note}; nothing to measure")
@@ -417,12 +440,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         "source": source_revision(),
         "bits": args.bits,
         "draco_levels": args.draco_levels,
+        "options": options,
         "load_average": {"start": load_average()},
     }
     entries = []
     for name in args.meshes:
         entry = measure_stream_size(
-            args.mesh_dir / name, args.bits, args.draco_levels, args.timeout
+            args.mesh_dir / name, args.bits, args.draco_levels, args.timeout, options
         )
         entries.append(entry)
         progress(

@@ -91,9 +91,6 @@ __all__ = [
 # with more is refused (a vertex with hundreds of UV charts meeting at it).
 MAX_WEDGES_PER_CONTRACTION = 1024
 
-# A direction of the contraction quadric whose eigenvalue is below this fraction of the
-# largest is treated as flat (truncated pseudo-inverse, see _kernels/placement.py).
-RANK_TOLERANCE = 1e-3
 # Contractions per call of the loop: Python reports progress (and a server job notices a
 # delete) between calls. Small meshes take chunks of a sixteenth of their vertices, so
 # they report too; chunks change nothing in the result.
@@ -170,7 +167,7 @@ def _scaled(values: np.ndarray, exponent: int, out: np.ndarray | None = None,
 
 def _kernel_params(options: BuildOptions) -> np.ndarray:
     params = np.zeros(N_PARAMS)
-    params[PARAM_RANK_TOLERANCE] = RANK_TOLERANCE
+    params[PARAM_RANK_TOLERANCE] = options.rank_tolerance
     params[PARAM_COS_STEP_TURN] = np.cos(np.radians(options.max_face_turn_deg))
     params[PARAM_EXACT] = float(ERROR_MODE_CODES[options.error_mode])
     params[PARAM_PRESERVE_TOPOLOGY] = float(options.preserve_topology)
@@ -404,11 +401,11 @@ def _contract(mesh: list, options: BuildOptions, progress: ProgressCallback | No
             ids = np.arange(candidates.shape[0], dtype=np.int64)
             run_start, run_end = np.zeros(1, np.int64), np.array([ids.size], np.int64)
         fill_heap(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, candidates, ids, run_start,
-                  run_end, exact, RANK_TOLERANCE, heap.entries)
+                  run_end, exact, options.rank_tolerance, heap.entries)
         heap.size[0] = run_end[0]  # one run, from row 0
     else:
         fill_costs(cx.vertices, cx.vertex_quadrics, cx.edge_quadrics, candidates, exact,
-                   RANK_TOLERANCE, cx.faces, cx.face_alive, lists.start, lists.count,
+                   options.rank_tolerance, cx.faces, cx.face_alive, lists.start, lists.count,
                    lists.pool, _look(cx, scratch), heap.entries)
         heap.size[0] = candidates.shape[0]
     heapify(heap.entries, heap.position, heap.size)

@@ -47,6 +47,7 @@ options = st.fixed_dictionaries(
         "error_mode": st.sampled_from(["additive", "exact"]),
         "distance_weight": st.sampled_from([0.0, 1.0]),
         "volume_weight": st.sampled_from([0.0, 3.0]),
+        "rank_tolerance": st.sampled_from([1e-3, 0.05, 1.0]),
     }
 )
 # Without topology preservation too. Its coarsest levels break the "every vertex used"
@@ -58,6 +59,7 @@ any_options = st.fixed_dictionaries(
         "preserve_topology": st.booleans(),
         "distance_weight": st.sampled_from([0.0, 1.0]),
         "volume_weight": st.sampled_from([0.0, 3.0]),
+        "rank_tolerance": st.sampled_from([1e-3, 0.05, 1.0]),
     }
 )
 

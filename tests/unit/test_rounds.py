@@ -499,7 +499,7 @@ def test_a_parked_edge_is_not_priced_again_in_its_round():
                         cx.faces, cx.face_alive, cx.face_edge, lists.start, lists.count,
                         lists.pool, hood.near, hood.generation, hood.retry, hood.part,
                         heap.entries, heap.position, heap.size, stop_key, np.int64(v),
-                        np.bool_(False), False, simplify.RANK_TOLERANCE, np.zeros(QUADRIC_SIZE),
+                        np.bool_(False), False, options.rank_tolerance, np.zeros(QUADRIC_SIZE),
                         np.zeros(3), look)
     assert heap.position[parked] == PARKED
     priced = v_edges[1:]

@@ -3,8 +3,12 @@
 // probabilities of a 0 with the shift-4 update, a 32-bit range, the first byte LZMA
 // writes (always 0) not stored, so decoding starts by reading 4 bytes.
 //
-// Numbers, not 32-bit bit operations, hold the range and code: both stay below 2^32
-// (the code below the range, which the start checks), so every step is exact.
+// The range and the code are held as the int32 bit patterns of their uint32 values
+// (`x | 0`, read back as `x >>> 0`): the engine keeps int32 fields in the object itself,
+// where a number past 2^31 lives in a heap box of its own, which every decision loaded
+// and stored through. Every step is exact in 32 bits: the code stays below the range
+// (which the start checks), both below 2^32, and a bound (range >>> 12) * p below
+// 2^20 * 2^12 (p < 2^12).
 
 export const PROB_BITS = 12;
 const ONE = 1 << PROB_BITS;
@@ -40,13 +44,14 @@ export class RangeDecoder {
     this.data = data;
     this.position = 0;
     this.broken = false; // read past the end, or a code no encoder writes
-    this.range = 0xffffffff;
-    this.code = 0;
-    for (let i = 0; i < 4; i++) this.code = this.code * 256 + this.nextByte();
-    if (this.code >= this.range) {
+    this.range = 0xffffffff | 0;
+    let code = 0;
+    for (let i = 0; i < 4; i++) code = code * 256 + this.nextByte();
+    if (code >= 0xffffffff) {
       this.broken = true;
-      this.code = 0;
+      code = 0;
     }
+    this.code = code | 0;
   }
 
   nextByte() {
@@ -57,23 +62,23 @@ export class RangeDecoder {
   }
 
   normalise() {
-    while (this.range < TOP) {
-      this.range *= 256;
-      this.code = this.code * 256 + this.nextByte();
+    while (this.range >>> 0 < TOP) {
+      this.range <<= 8;
+      this.code = (this.code << 8) | this.nextByte();
     }
   }
 
   bit(probs, ctx) {
     const p = probs[ctx];
-    const bound = (this.range >>> PROB_BITS) * p;
+    const bound = Math.imul(this.range >>> PROB_BITS, p); // below 2^32: exact
     let bit;
-    if (this.code < bound) {
+    if (this.code >>> 0 < bound >>> 0) {
       this.range = bound;
       probs[ctx] = p + ((ONE - p) >> RATE);
       bit = 0;
     } else {
-      this.code -= bound;
-      this.range -= bound;
+      this.code = (this.code - bound) | 0;
+      this.range = (this.range - bound) | 0;
       probs[ctx] = p - (p >> RATE);
       bit = 1;
     }
@@ -82,12 +87,13 @@ export class RangeDecoder {
   }
 
   direct() {
-    this.range = Math.floor(this.range / 2);
+    const range = this.range >>> 1;
+    this.range = range;
     let bit = 0;
-    if (this.code >= this.range) {
-      this.code -= this.range;
+    if (this.code >>> 0 >= range) {
+      this.code = (this.code - range) | 0;
       bit = 1;
-      if (this.code >= this.range) {
+      if (this.code >>> 0 >= range) {
         this.broken = true;
         this.code = 0;
       }

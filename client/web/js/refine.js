@@ -453,12 +453,12 @@ class SplitState {
     const n = this.cornersOf(v);
     const list = this.list;
     const at = this.listAt;
-    for (let i = 0; i < n; i++) {
-      if (list[at + i] !== c) continue;
-      list.copyWithin(at + i, at + i + 1, at + n);
-      this.fan[FAN_BLOCK * v] = n - 1;
-      return;
-    }
+    let i = 0;
+    while (i < n && list[at + i] !== c) i++;
+    if (i === n) return;
+    // by hand: copyWithin is a runtime call, dearer than the few corners it moves
+    for (; i < n - 1; i++) list[at + i] = list[at + i + 1];
+    this.fan[FAN_BLOCK * v] = n - 1;
   }
 
   /** Sorted corners of s into cs (this.nc of them), sorted distinct other vertices into
@@ -585,8 +585,12 @@ class SplitState {
     const sy = q[FAN_BLOCK * s + FAN_Q + 1];
     const sz = q[FAN_BLOCK * s + FAN_Q + 2];
     let big = 0;
-    let [ax, ay, az] = [0, 0, 0]; // sums of |offset|
-    let [lx, ly, lz] = [0, 0, 0]; // sums of offsets
+    let ax = 0; // sums of |offset|
+    let ay = 0;
+    let az = 0;
+    let lx = 0; // sums of offsets
+    let ly = 0;
+    let lz = 0;
     for (let j = 0; j < nn; j++) {
       const w = FAN_BLOCK * nb[j] + FAN_Q;
       const ox = q[w] - sx;
@@ -604,7 +608,9 @@ class SplitState {
     spread[0] = nn ? Math.floor(ax / nn) : 0;
     spread[1] = nn ? Math.floor(ay / nn) : 0;
     spread[2] = nn ? Math.floor(az / nn) : 0;
-    const divisor = POW2[Math.max(0, bitLength(big) - DIFF_BITS)];
+    // Offsets are differences of grid integers (below 2^24 in magnitude), so an
+    // arithmetic shift is their floor division by 2^shift.
+    const shift = Math.max(0, bitLength(big) - DIFF_BITS);
     let nx = 0;
     let ny = 0;
     let nz = 0;
@@ -614,16 +620,12 @@ class SplitState {
       const j = c % 3;
       const u = FAN_BLOCK * faces[f + ((j + 1) % 3)] + FAN_Q;
       const w = FAN_BLOCK * faces[f + ((j + 2) % 3)] + FAN_Q;
-      let [ux, uy, uz] = [q[u] - sx, q[u + 1] - sy, q[u + 2] - sz];
-      let [wx, wy, wz] = [q[w] - sx, q[w + 1] - sy, q[w + 2] - sz];
-      if (divisor !== 1) {
-        ux = Math.floor(ux / divisor);
-        uy = Math.floor(uy / divisor);
-        uz = Math.floor(uz / divisor);
-        wx = Math.floor(wx / divisor);
-        wy = Math.floor(wy / divisor);
-        wz = Math.floor(wz / divisor);
-      }
+      const ux = (q[u] - sx) >> shift;
+      const uy = (q[u + 1] - sy) >> shift;
+      const uz = (q[u + 2] - sz) >> shift;
+      const wx = (q[w] - sx) >> shift;
+      const wy = (q[w + 1] - sy) >> shift;
+      const wz = (q[w + 2] - sz) >> shift;
       nx += uy * wz - uz * wy;
       ny += uz * wx - ux * wz;
       nz += ux * wy - uy * wx;

@@ -392,8 +392,11 @@ class SplitState {
       this.link(v, c);
     }
     this.cs = new Int32Array(16); // corners of s, sorted
+    this.after = new Int32Array(16); // the corner after s in the face of each
+    this.before = new Int32Array(16); // and the one before
     this.nb = new Int32Array(32); // its distinct neighbours, sorted
     this.mark = new Uint8Array(16);
+    this.open = new Int32Array(16); // walk's sides of the corners not taken yet
     this.ys = new Int32Array(16); // vertices met walking around s
     this.keys = new Float64Array(16); // the fan's corners by side (fanKeys)
     this.met = new Int32Array(64); // ringSum's neighbours
@@ -461,28 +464,30 @@ class SplitState {
     this.fan[FAN_BLOCK * v] = n - 1;
   }
 
-  /** Sorted corners of s into cs (this.nc of them), sorted distinct other vertices into
-   * nb (this.nn). */
+  /** Sorted corners of s into cs (this.nc of them), the corners after and before s in
+   * their faces into after and before, sorted distinct other vertices into nb
+   * (this.nn). */
   gather(s) {
     const faces = this.faces;
     const nc = this.cornersOf(s);
     if (nc > this.cs.length) this.grow(2 * nc);
-    const cs = this.cs;
+    const { cs, after, before, nb } = this;
     const list = this.list;
     const at = this.listAt;
     for (let q = 0; q < nc; q++) cs[q] = list[at + q];
     sortPrefix(cs, nc);
-    const nb = this.nb;
     let m = 0;
     for (let q = 0; q < nc; q++) {
       const c = cs[q];
       const f = c - (c % 3);
-      const a = faces[f];
-      const b = faces[f + 1];
-      const d = faces[f + 2];
+      const j = c - f;
+      // with s, the face's three corners: its others are those of the two that are not s
+      const a = faces[f + (j === 2 ? 0 : j + 1)];
+      const b = faces[f + (j === 0 ? 2 : j - 1)];
+      after[q] = a;
+      before[q] = b;
       if (a !== s) nb[m++] = a;
       if (b !== s) nb[m++] = b;
-      if (d !== s) nb[m++] = d;
     }
     sortPrefix(nb, m);
     let nn = 0;
@@ -496,36 +501,31 @@ class SplitState {
     const cs = new Int32Array(degree);
     cs.set(this.cs);
     this.cs = cs;
+    this.after = new Int32Array(degree);
+    this.before = new Int32Array(degree);
     this.nb = new Int32Array(2 * degree);
     this.mark = new Uint8Array(degree);
+    this.open = new Int32Array(degree);
     this.ys = new Int32Array(degree);
     this.keys = new Float64Array(degree);
   }
 
   /** keys[0..nc) = side * nc + q sorted, side the corner before s (after s when not
-   * `forward`) in the face of cs[q] (stream_coding._fan_keys). */
+   * `forward`) in the face of cs[q] (stream_coding._fan_keys): for fans of more than
+   * FAN_SCAN corners, whose walk looks its steps up rather than scanning for them. */
   fanKeys(nc, forward) {
     if (this.keysFor === forward) return; // this split's corners, keyed so already
     this.keysFor = forward;
-    const { cs, faces, keys } = this;
-    for (let q = 0; q < nc; q++) {
-      const c = cs[q];
-      const f = c - (c % 3);
-      const j = c % 3;
-      const side = forward ? faces[f + ((j + 2) % 3)] : faces[f + ((j + 1) % 3)];
-      keys[q] = nc > FAN_SCAN ? side * nc + q : side; // few corners: scanned, not sorted
-    }
-    if (nc > FAN_SCAN) sortPrefix(keys, nc);
+    const sides = forward ? this.before : this.after;
+    const keys = this.keys;
+    for (let q = 0; q < nc; q++) keys[q] = sides[q] * nc + q;
+    sortPrefix(keys, nc);
   }
 
   /** The first corner q (in cs order) not marked in `used` whose side is y, or -1
-   * (stream_coding._fan_next; a scan in cs order when there are few corners). */
+   * (stream_coding._fan_next), in the keys of fanKeys. */
   fanNext(nc, used, y) {
     const keys = this.keys;
-    if (nc <= FAN_SCAN) {
-      for (let q = 0; q < nc; q++) if (keys[q] === y && !used[q]) return q;
-      return -1;
-    }
     let lo = 0;
     let hi = nc;
     while (lo < hi) {
@@ -540,27 +540,39 @@ class SplitState {
     return -1;
   }
 
-  /** The corner after s (before s when not `forward`) in the face of cs[q]. */
-  fanStep(q, forward) {
-    const c = this.cs[q];
-    const f = c - (c % 3);
-    const j = c % 3;
-    return forward ? this.faces[f + ((j + 1) % 3)] : this.faces[f + ((j + 2) % 3)];
-  }
-
   /** Walk around s from `start` (stream_coding._walk): the corners taken are marked in
-   * mark[0..nc), the vertices met before `stop` go into ys; returns how many. */
+   * mark[0..nc), the vertices met before `stop` go into ys; returns how many. Each step
+   * takes the first corner (in cs order) not taken yet whose side (the corner before s,
+   * after s when not `forward`) is the vertex reached, and goes on to its other side. */
   walk(nc, start, forward, stop) {
     const { mark, ys } = this;
+    const sides = forward ? this.before : this.after;
+    const steps = forward ? this.after : this.before;
     for (let q = 0; q < nc; q++) mark[q] = 0; // TypedArray.fill is a runtime call
-    this.fanKeys(nc, forward);
     let y = start;
     let m = 0;
+    if (nc <= FAN_SCAN) {
+      // Few corners: scanned, the sides of those taken overwritten (vertices are >= 0).
+      const open = this.open;
+      for (let q = 0; q < nc; q++) open[q] = sides[q];
+      for (let step = 0; step < nc; step++) {
+        let q = 0;
+        while (q < nc && open[q] !== y) q++;
+        if (q === nc) break;
+        open[q] = -1;
+        mark[q] = 1;
+        y = steps[q];
+        if (y === stop) break;
+        ys[m++] = y;
+      }
+      return m;
+    }
+    this.fanKeys(nc, forward);
     for (let step = 0; step < nc; step++) {
       const q = this.fanNext(nc, mark, y);
       if (q < 0) break;
       mark[q] = 1;
-      y = this.fanStep(q, forward);
+      y = steps[q];
       if (y === stop) break;
       ys[m++] = y;
     }
@@ -579,7 +591,7 @@ class SplitState {
    * nb), into shape (stream_coding._ring_shape): the spread per axis, the ring's normal
    * and the sign context of the curvature along it. */
   ringShape(s, nc, nn, shape) {
-    const { cs, nb, faces } = this;
+    const { after, before, nb } = this;
     const q = this.fan;
     const sx = q[FAN_BLOCK * s + FAN_Q];
     const sy = q[FAN_BLOCK * s + FAN_Q + 1];
@@ -615,11 +627,8 @@ class SplitState {
     let ny = 0;
     let nz = 0;
     for (let i = 0; i < nc; i++) {
-      const c = cs[i];
-      const f = c - (c % 3);
-      const j = c % 3;
-      const u = FAN_BLOCK * faces[f + ((j + 1) % 3)] + FAN_Q;
-      const w = FAN_BLOCK * faces[f + ((j + 2) % 3)] + FAN_Q;
+      const u = FAN_BLOCK * after[i] + FAN_Q;
+      const w = FAN_BLOCK * before[i] + FAN_Q;
       const ux = (q[u] - sx) >> shift;
       const uy = (q[u + 1] - sy) >> shift;
       const uz = (q[u + 2] - sz) >> shift;

@@ -104,6 +104,16 @@ function sortPrefix(array, n) {
   }
 }
 
+/** Put value into the sorted distinct array[0..n) unless it is there; the new length. */
+function insertDistinct(array, n, value) {
+  let j = n;
+  while (j > 0 && array[j - 1] > value) j--;
+  if (j > 0 && array[j - 1] === value) return n;
+  for (let i = n; i > j; i--) array[i] = array[i - 1];
+  array[j] = value;
+  return n + 1;
+}
+
 /** Context of a sign: 0 for 0, 1 for positive, 2 for negative (stream_coding._sign). */
 function signContext(value) {
   return value > 0 ? 1 : value < 0 ? 2 : 0;
@@ -476,22 +486,30 @@ class SplitState {
     const at = this.listAt;
     for (let q = 0; q < nc; q++) cs[q] = list[at + q];
     sortPrefix(cs, nc);
-    let m = 0;
     for (let q = 0; q < nc; q++) {
       const c = cs[q];
       const f = c - (c % 3);
       const j = c - f;
-      // with s, the face's three corners: its others are those of the two that are not s
-      const a = faces[f + (j === 2 ? 0 : j + 1)];
-      const b = faces[f + (j === 0 ? 2 : j - 1)];
-      after[q] = a;
-      before[q] = b;
-      if (a !== s) nb[m++] = a;
-      if (b !== s) nb[m++] = b;
+      after[q] = faces[f + (j === 2 ? 0 : j + 1)];
+      before[q] = faces[f + (j === 0 ? 2 : j - 1)];
     }
-    sortPrefix(nb, m);
+    // With s, a face's three corners: its others are those of the two that are not s.
     let nn = 0;
-    for (let q = 0; q < m; q++) if (nn === 0 || nb[q] !== nb[nn - 1]) nb[nn++] = nb[q];
+    if (nc <= FAN_SCAN) {
+      // each neighbour is met about twice: placed once, in a list of a handful
+      for (let q = 0; q < nc; q++) {
+        if (after[q] !== s) nn = insertDistinct(nb, nn, after[q]);
+        if (before[q] !== s) nn = insertDistinct(nb, nn, before[q]);
+      }
+    } else {
+      let m = 0;
+      for (let q = 0; q < nc; q++) {
+        if (after[q] !== s) nb[m++] = after[q];
+        if (before[q] !== s) nb[m++] = before[q];
+      }
+      sortPrefix(nb, m);
+      for (let q = 0; q < m; q++) if (nn === 0 || nb[q] !== nb[nn - 1]) nb[nn++] = nb[q];
+    }
     this.nc = nc;
     this.nn = nn;
   }

@@ -412,6 +412,10 @@ class SplitState {
     this.met = new Int32Array(64); // ringSum's neighbours
     this.sumA = [0, 0, 0];
     this.sumB = [0, 0, 0];
+    // decodeMid's frame: products past 2^31, in float64 arrays of their own (a fresh
+    // array per split was garbage, and changed its elements' kind on the way)
+    this.binormal = new Float64Array(3);
+    this.reduced = new Float64Array(3);
   }
 
   /** v's corners (any order) are list[at .. at + count), count returned, list and at
@@ -897,7 +901,7 @@ export class ProgressiveLevels {
     let face = frame.facesFrom;
     const faceEnd = face + frame.nNewFaces;
     const prediction = [0, 0, 0];
-    const shape = { spread: [0, 0, 0], normal: [0, 0, 0], laplace: [0, 0, 0], bulge: 0 };
+    const shape = { spread: [0, 0, 0], normal: new Float64Array(3), laplace: new Float64Array(3), bulge: 0 };
     const edge = [0, 0, 0];
     const mid = [0, 0, 0];
     const axes = [0, 1, 2];
@@ -1035,7 +1039,7 @@ export class ProgressiveLevels {
     }
     let placement = 0;
     if (coder.bit(probs, PLACE_SLOTS)) placement = 1 + coder.bit(probs, PLACE_SLOTS + 1);
-    if (placement === 0) this.decodeMid(coder, probs, normal, bulge, edge, mid, axes, slots);
+    if (placement === 0) this.decodeMid(coder, probs, state, normal, bulge, edge, mid, slots);
     // Every value so far is an exact integer in float64 (the coder's are below 2^34);
     // the 32-bit buffers take only positions on the grid (decode_connectivity refuses
     // the others too, so both decoders refuse the same frames).
@@ -1055,12 +1059,11 @@ export class ProgressiveLevels {
 
   /** position_mid into mid (offsets from s's old position), in the frame of e and the
    * normal when there is one (stream_coding._mid_frame, _mid_slots). */
-  decodeMid(coder, probs, normal, bulge, edge, mid, axes, slots) {
-    const binormal = [
-      edge[1] * normal[2] - edge[2] * normal[1],
-      edge[2] * normal[0] - edge[0] * normal[2],
-      edge[0] * normal[1] - edge[1] * normal[0],
-    ];
+  decodeMid(coder, probs, state, normal, bulge, edge, mid, slots) {
+    const binormal = state.binormal;
+    binormal[0] = edge[1] * normal[2] - edge[2] * normal[1];
+    binormal[1] = edge[2] * normal[0] - edge[0] * normal[2];
+    binormal[2] = edge[0] * normal[1] - edge[1] * normal[0];
     const k = dominant(binormal);
     if (binormal[k] === 0) {
       for (let d = 0; d < 3; d++) {
@@ -1071,10 +1074,13 @@ export class ProgressiveLevels {
       return;
     }
     shiftTo(binormal, NORMAL_BITS);
-    let a = k === 0 ? 1 : 0;
-    let b = k === 2 ? 1 : 2;
-    if (Math.abs(edge[b]) > Math.abs(edge[a])) [a, b] = [b, a];
-    const reduced = edge.slice();
+    const first = k === 0 ? 1 : 0;
+    const second = k === 2 ? 1 : 2;
+    const swap = Math.abs(edge[second]) > Math.abs(edge[first]);
+    const a = swap ? second : first;
+    const b = swap ? first : second;
+    const reduced = state.reduced;
+    for (let d = 0; d < 3; d++) reduced[d] = edge[d];
     shiftTo(reduced, NORMAL_BITS);
     const length = Math.min(bitLength(Math.abs(edge[0]) + Math.abs(edge[1]) + Math.abs(edge[2])), ROWS - 1);
     slots[0] = MID1_SLOTS + Math.min(bitLength(edge[a]), ROWS - 1) * IS;

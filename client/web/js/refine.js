@@ -618,7 +618,9 @@ class SplitState {
     const sx = q[FAN_BLOCK * s + FAN_Q];
     const sy = q[FAN_BLOCK * s + FAN_Q + 1];
     const sz = q[FAN_BLOCK * s + FAN_Q + 2];
-    let big = 0;
+    // the bits of every |offset|: its bit length is that of the largest, and OR-ing them
+    // has no branch to mispredict, which would hold back the loads of the next ones
+    let bits = 0;
     let ax = 0; // sums of |offset|
     let ay = 0;
     let az = 0;
@@ -636,7 +638,7 @@ class SplitState {
       ax += Math.abs(ox);
       ay += Math.abs(oy);
       az += Math.abs(oz);
-      big = Math.max(big, Math.abs(ox), Math.abs(oy), Math.abs(oz));
+      bits |= Math.abs(ox) | Math.abs(oy) | Math.abs(oz);
     }
     const spread = shape.spread;
     spread[0] = nn ? Math.floor(ax / nn) : 0;
@@ -644,7 +646,7 @@ class SplitState {
     spread[2] = nn ? Math.floor(az / nn) : 0;
     // Offsets are differences of grid integers (below 2^24 in magnitude), so an
     // arithmetic shift is their floor division by 2^shift.
-    const shift = Math.max(0, bitLength(big) - DIFF_BITS);
+    const shift = Math.max(0, bitLength(bits) - DIFF_BITS);
     let nx = 0;
     let ny = 0;
     let nz = 0;

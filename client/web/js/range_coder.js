@@ -10,15 +10,19 @@
 // (which the start checks), both below 2^32, and a bound (range >>> 12) * p below
 // 2^20 * 2^12 (p < 2^12).
 
-export const PROB_BITS = 12;
-const ONE = 1 << PROB_BITS;
+// The decisions read private constants only: an exported binding lives in a module
+// cell, which optimised code loads (and checks) on every use rather than folding it in.
+const PROBABILITY_BITS = 12;
+export const PROB_BITS = PROBABILITY_BITS;
+const ONE = 1 << PROBABILITY_BITS;
 export const HALF = ONE >> 1;
 const RATE = 4;
 const TOP = 2 ** 24;
 const MAX_EXPONENT = 32;
 const PREFIX = MAX_EXPONENT + 1;
 const TOP_TREE = 3;
-export const INTEGER_SLOTS = PREFIX + (MAX_EXPONENT + 1) * TOP_TREE + 1;
+const SIGN_SLOT = PREFIX + (MAX_EXPONENT + 1) * TOP_TREE; // after the magnitude's
+export const INTEGER_SLOTS = SIGN_SLOT + 1;
 export const UNIFORM_SLOTS = 64;
 
 /** Bit length of |value| (stream_coding._bit_length). */
@@ -70,7 +74,7 @@ export class RangeDecoder {
 
   bit(probs, ctx) {
     const p = probs[ctx];
-    const bound = Math.imul(this.range >>> PROB_BITS, p); // below 2^32: exact
+    const bound = Math.imul(this.range >>> PROBABILITY_BITS, p); // below 2^32: exact
     let bit;
     if (this.code >>> 0 < bound >>> 0) {
       this.range = bound;
@@ -127,7 +131,7 @@ export class RangeDecoder {
       n = 2 * n + bit;
     }
     const magnitude = n - 1;
-    if (signed && magnitude !== 0 && this.bit(probs, base + INTEGER_SLOTS - 1)) return -magnitude;
+    if (signed && magnitude !== 0 && this.bit(probs, base + SIGN_SLOT)) return -magnitude;
     return magnitude;
   }
 

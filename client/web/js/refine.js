@@ -494,8 +494,8 @@ class SplitState {
       const c = cs[q];
       const f = c - (c % 3);
       const j = c - f;
-      after[q] = faces[f + (j === 2 ? 0 : j + 1)];
-      before[q] = faces[f + (j === 0 ? 2 : j - 1)];
+      after[q] = faces[f + ((j + 1) % 3)];
+      before[q] = faces[f + ((j + 2) % 3)];
     }
     // With s, a face's three corners: its others are those of the two that are not s.
     let nn = 0;

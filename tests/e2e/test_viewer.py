@@ -726,19 +726,29 @@ def assert_levels_on_screen_are_served(page, http: httpx.Client, url: str, level
         )
 
 
+def upload_ready(server, name: str) -> dict:
+    """A shared mesh uploaded and built (the viewer's packages checked first)."""
+    require_web_packages()
+    with server.client() as qem:
+        return qem.wait_ready(qem.upload(shared_mesh(name)), timeout=READY_TIMEOUT_MS / 1000)
+
+
+def require_software_gl(page, url: str, otherwise: str) -> None:
+    """Open the viewer; skip the test unless its WebGL draws on the CPU."""
+    page.goto(f"{url}/")
+    page.wait_for_function("() => window.qemViewer?.state.softwareGL !== null")
+    if not page.evaluate("window.qemViewer.state.softwareGL"):
+        pytest.skip(f"this Chromium draws WebGL on a GPU: {otherwise}")
+
+
 def test_viewer_draws_off_screen_without_a_gpu(server, tmp_path):
     """With a GL that draws on the CPU (this Chromium's, started without a GPU), frames
     are drawn into a render target and copied to the canvas once finished, so that the
     compositor's readback does not wait for them: every frame so drawn here, the mesh
     must reach the screen shaded and the levels stay the server's."""
-    require_web_packages()
-    with server.client() as qem:
-        info = qem.wait_ready(qem.upload(shared_mesh("bunny.ply")), timeout=READY_TIMEOUT_MS / 1000)
+    info = upload_ready(server, "bunny.ply")
     with chromium_page(tmp_path / "profile") as page, httpx.Client(timeout=60) as http:
-        page.goto(f"{server.url}/")
-        page.wait_for_function("() => window.qemViewer?.state.softwareGL !== null")
-        if not page.evaluate("window.qemViewer.state.softwareGL"):
-            pytest.skip("this Chromium draws WebGL on a GPU: frames go straight to the canvas")
+        require_software_gl(page, server.url, "frames go straight to the canvas")
         page.evaluate("window.qemViewer.drawOffScreenAbove(0)")
         state = open_at_full_detail(page, server.url, info["id"])
         assert state["failure"] is None and state["framesOffScreen"] >= 2  # base, full
@@ -757,6 +767,36 @@ def test_viewer_draws_off_screen_without_a_gpu(server, tmp_path):
         shot = page.locator("#canvas").screenshot()
         stats = page.evaluate(_IMAGE_STATS, base64.b64encode(shot).decode())
         assert 0.02 < stats["away"] < 0.95, stats  # the copy reached the canvas
+        assert stats["colours"] > 16, stats
+        assert page.errors == []
+
+
+def test_viewer_polishes_a_view_at_rest_without_a_gpu(server, tmp_path):
+    """With a GL that draws on the CPU, each sample costs (SwiftShader: three times the
+    time at 4 samples as at 1), so the canvas and the frames have one, and a view at rest
+    is drawn once more multisampled: the full mesh, then a level moved to, each
+    polished once it rests, shaded on screen, the levels still the server's."""
+    info = upload_ready(server, "bunny.ply")
+    with chromium_page(tmp_path / "profile") as page, httpx.Client(timeout=60) as http:
+        require_software_gl(page, server.url, "its frames are multisampled")
+        context = "document.querySelector('#canvas').getContext('webgl2')"
+        assert page.evaluate(f"{context}.getContextAttributes().antialias") is False
+        state = open_at_full_detail(page, server.url, info["id"])
+        assert state["failure"] is None
+        page.wait_for_function("() => window.qemViewer.state.fullPolishedMs !== null")
+        state = page.evaluate("window.qemViewer.state")
+        assert state["fullPolishedMs"] > state["fullShownMs"] and state["framesPolished"] >= 1
+        url = f"{server.url}/v1/meshes/{info['id']}"
+        page.evaluate("() => window.qemViewer.setLevel(1000)")
+        assert page.evaluate("window.qemViewer.levelDigest()") == served_digest(http, url, 1000)[0]
+        page.wait_for_function(
+            "(n) => window.qemViewer.state.framesPolished > n", arg=state["framesPolished"]
+        )
+        for overlay in ("#hud", "#controls"):
+            page.eval_on_selector(overlay, "node => { node.style.visibility = 'hidden'; }")
+        shot = page.locator("#canvas").screenshot()
+        stats = page.evaluate(_IMAGE_STATS, base64.b64encode(shot).decode())
+        assert 0.02 < stats["away"] < 0.95, stats  # the polished copy reached the canvas
         assert stats["colours"] > 16, stats
         assert page.errors == []
 

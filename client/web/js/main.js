@@ -291,6 +291,7 @@ async function load(source) {
     started: performance.now(),
     baseShownMs: null,
     fullShownMs: null,
+    fullPolishedMs: null, // a software GL's full mesh drawn again multisampled (scene.js)
     streamedMs: null, // every frame received and stored
     errors: new Map(), // level -> quadric error, from X-Lod-Error
     errorTimer: null,
@@ -455,10 +456,13 @@ function scheduleErrorLookup(current) {
   }, ERROR_DELAY_MS);
 }
 
-function onRendered(levels, level) {
+function onRendered(levels, level, polished) {
   const current = view;
   if (!current || current.levels !== levels) return;
   const elapsed = performance.now() - current.started;
+  if (polished && current.fullPolishedMs == null && level === levels.nFull) {
+    current.fullPolishedMs = elapsed;
+  }
   let changed = false;
   if (current.baseShownMs == null) {
     current.baseShownMs = elapsed;
@@ -521,11 +525,13 @@ window.qemViewer = {
       baseShownMs: view?.baseShownMs ?? null,
       streamedMs: view?.streamedMs ?? null,
       fullShownMs: view?.fullShownMs ?? null,
+      fullPolishedMs: view?.fullPolishedMs ?? null,
       attributes: levels?.wedges?.grid.names ?? [], // appearance carried by the wedges
       renderVertices: levels?.wedges?.render.count ?? null,
       textureShown: scene?.textureShown ?? false,
       softwareGL: scene?.softwareGL ?? null, // the GL draws on the CPU
       framesOffScreen: scene?.framesOffScreen ?? 0, // frames drawn off screen (scene.js)
+      framesPolished: scene?.framesPolished ?? 0, // views at rest drawn again multisampled
     };
   },
   /** Draw a software GL's frames off screen when they would take over `ms` (0: all). */

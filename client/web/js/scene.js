@@ -33,6 +33,11 @@ const BUFFER_GROWTH = 4;
 const BUFFER_MIN_ROWS = 4096;
 // How often a frame drawn off screen is asked whether the GL has finished it.
 const FENCE_POLL_MS = 4;
+// A GL that draws on the CPU pays for every sample: SwiftShader drew dragon's full mesh
+// at 1200 x 800 in 620 ms with 4 samples and 190 ms with one. Its canvas and frames have
+// one; a view at rest this long is drawn once more with POLISH_SAMPLES (polish).
+const POLISH_AFTER_MS = 500;
+const POLISH_SAMPLES = 4;
 
 /** The rows of the drawn buffers that the level uses: its vertices, or with wedges its
  * render vertices. */
@@ -42,7 +47,8 @@ export class MeshScene {
   /** Throws when the browser has no WebGL. */
   constructor(canvas) {
     this.canvas = canvas;
-    this.renderer = new THREE.WebGLRenderer({ canvas, antialias: true });
+    this.softwareGL = drawsOnTheCpu();
+    this.renderer = new THREE.WebGLRenderer({ canvas, antialias: !this.softwareGL });
     this.renderer.setPixelRatio(Math.min(window.devicePixelRatio, 2));
     this.scene = new THREE.Scene();
     this.scene.background = new THREE.Color(0x1d2026);
@@ -53,7 +59,10 @@ export class MeshScene {
     key.position.set(1, 1.5, 2); // follows the camera, so the side in view is lit
     this.camera.add(key);
     this.controls = new OrbitControls(this.camera, canvas);
-    this.controls.addEventListener("change", () => this.requestRender());
+    this.controls.addEventListener("change", () => {
+      this.polishNext = false; // a polish would hold the view's next move back
+      this.requestRender();
+    });
     this.mesh = null;
     this.levels = null;
     this.dirty = false;
@@ -66,11 +75,13 @@ export class MeshScene {
     this.onRendered = null; // (levels, level) => void, after each frame shown: the level drawn
     this.drawing = false; // a frame drawn off screen that the GL has not finished
     this.waiting = false; // a frame asked for while one was drawing: it comes after
-    this.target = null; // where such frames are drawn (offscreenTarget)
+    this.targets = new Map(); // where such frames are drawn, by samples (offscreenTarget)
     this.copy = null; // and the quad that copies them to the canvas once finished
-    this.softwareGL = drawsOnTheCpu(this.renderer.getContext());
     this.offscreenMs = OFFSCREEN_MS; // tests set 0 to draw every frame off screen
     this.framesOffScreen = 0; // frames drawn by drawOffScreen, for tests and benchmarks
+    this.polishTimer = null; // a software GL's view at rest: polished (schedulePolish)
+    this.polishNext = false; // the next frame is that polish
+    this.framesPolished = 0; // for tests and benchmarks
     new ResizeObserver(() => this.resize()).observe(canvas);
     this.resize();
   }
@@ -311,6 +322,8 @@ export class MeshScene {
     this.pending = false;
     this.lastRender = performance.now();
     const levels = this.levels;
+    const polish = this.polishNext && !this.dirty; // the view as it was: nothing new came
+    this.polishNext = false;
     if (this.mesh && this.dirty) {
       const geometry = this.mesh.geometry;
       const render = levels.wedges?.render;
@@ -339,17 +352,23 @@ export class MeshScene {
     // from here to then.
     const shown = () =>
       requestAnimationFrame(() => {
-        const ms = performance.now() - started;
-        if (this.frameFaces > 0 && faces > 1.1 * this.frameFaces) {
-          this.faceMs = Math.max(0, (ms - this.frameMs) / (faces - this.frameFaces));
+        if (polish) {
+          this.framesPolished++; // its samples' time says nothing of the next frame's
+        } else {
+          const ms = performance.now() - started;
+          if (this.frameFaces > 0 && faces > 1.1 * this.frameFaces) {
+            this.faceMs = Math.max(0, (ms - this.frameMs) / (faces - this.frameFaces));
+          }
+          this.frameMs = ms;
+          this.frameFaces = faces;
+          if (this.softwareGL) this.schedulePolish();
         }
-        this.frameMs = ms;
-        this.frameFaces = faces;
         // A background redraw waiting was timed before this frame's time was known.
         if (this.timer) this.requestRender(this.backgroundInterval(), true);
-        if (levels) this.onRendered?.(levels, level);
+        if (levels) this.onRendered?.(levels, level, polish);
       });
-    if (this.softwareGL && this.frameCost() > this.offscreenMs) this.drawOffScreen(shown);
+    if (polish) this.drawOffScreen(shown, POLISH_SAMPLES);
+    else if (this.softwareGL && this.frameCost() > this.offscreenMs) this.drawOffScreen(shown, 0);
     else {
       this.renderer.render(this.scene, this.camera);
       shown();
@@ -362,9 +381,9 @@ export class MeshScene {
    * the page's main thread waits for that: a second for dragon's full mesh, while the
    * page can take no input. Off screen the page waits only for the copy, provided no
    * draw is queued ahead of the readback (below). */
-  drawOffScreen(shown) {
+  drawOffScreen(shown, samples) {
     const renderer = this.renderer;
-    const target = this.offscreenTarget();
+    const target = this.offscreenTarget(samples);
     renderer.setRenderTarget(target);
     renderer.render(this.scene, this.camera);
     renderer.setRenderTarget(null);
@@ -379,7 +398,11 @@ export class MeshScene {
         return;
       }
       gl.deleteSync(fence);
-      if (this.target !== target) return this.finishDrawing(); // resized: a new frame is due
+      if (this.targets.get(samples) !== target) return this.finishDrawing(); // resized: a new frame is due
+      if (this.copy.material.map !== target.texture) {
+        this.copy.material.map = target.texture;
+        this.copy.material.needsUpdate = true;
+      }
       this.copy.render(renderer);
       // The compositor reads the canvas back at the next frame's commit, and a draw
       // issued before that commit is queued ahead of the readback: the page would wait
@@ -399,25 +422,43 @@ export class MeshScene {
     requestAnimationFrame(() => this.render());
   }
 
-  /** A multisampled render target the size of the canvas's drawing buffer, kept while
-   * that size holds. */
-  offscreenTarget() {
+  /** A render target the size of the canvas's drawing buffer with `samples` samples (0:
+   * none), kept while that size holds. */
+  offscreenTarget(samples) {
     const size = this.renderer.getDrawingBufferSize(new THREE.Vector2());
-    if (this.target && this.target.width === size.x && this.target.height === size.y) return this.target;
-    this.target?.dispose();
-    this.target = new THREE.WebGLRenderTarget(size.x, size.y, { samples: 4 });
-    this.target.texture.colorSpace = THREE.SRGBColorSpace;
+    let target = this.targets.get(samples);
+    if (target && target.width === size.x && target.height === size.y) return target;
+    target?.dispose();
+    target = new THREE.WebGLRenderTarget(size.x, size.y, { samples });
+    target.texture.colorSpace = THREE.SRGBColorSpace;
+    this.targets.set(samples, target);
     this.copy ??= new FullScreenQuad(new THREE.MeshBasicMaterial({ depthTest: false, depthWrite: false }));
-    this.copy.material.map = this.target.texture;
-    this.copy.material.needsUpdate = true;
-    return this.target;
+    return target;
+  }
+
+  /** Draw the view once more with POLISH_SAMPLES samples when it has rested
+   * POLISH_AFTER_MS after this frame (a software GL's frames have one): unless a frame
+   * is coming by then (a stream's next records, a move), which asks again. */
+  schedulePolish() {
+    clearTimeout(this.polishTimer);
+    this.polishTimer = setTimeout(() => {
+      this.polishTimer = null;
+      if (this.dirty || this.pending || !this.mesh) return;
+      this.polishNext = true;
+      this.requestRender();
+    }, POLISH_AFTER_MS);
   }
 }
 
-/** Whether the GL draws on the CPU (a browser without a GPU, or started without one):
- * there the compositor reads the canvas back, and a frame's time grows with its faces. */
-function drawsOnTheCpu(gl) {
+/** Whether the page's GL draws on the CPU (a browser without a GPU, or started without
+ * one): there the compositor reads the canvas back, a frame's time grows with its faces,
+ * and each sample costs. Asked of a throwaway context before the renderer's own is made,
+ * since whether that one is multisampled depends on it. */
+function drawsOnTheCpu() {
+  const gl = document.createElement("canvas").getContext("webgl2");
+  if (!gl) return false; // the renderer's own context fails and says so
   const info = gl.getExtension("WEBGL_debug_renderer_info");
   const renderer = gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER);
+  gl.getExtension("WEBGL_lose_context")?.loseContext();
   return SOFTWARE_RENDERER.test(String(renderer));
 }

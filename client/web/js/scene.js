@@ -72,7 +72,7 @@ export class MeshScene {
     this.frameMs = 0; // how long the last frame took to draw
     this.frameFaces = 0; // and how many faces it drew
     this.faceMs = 0; // what a face added to a frame's time, from the last two frames
-    this.onRendered = null; // (levels, level) => void, after each frame shown: the level drawn
+    this.onRendered = null; // (levels, level, polished) => void, after each frame shown
     this.drawing = false; // a frame drawn off screen that the GL has not finished
     this.waiting = false; // a frame asked for while one was drawing: it comes after
     this.targets = new Map(); // where such frames are drawn, by samples (offscreenTarget)

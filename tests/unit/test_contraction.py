@@ -247,7 +247,7 @@ def test_a_refused_hub_is_retried_only_up_to_its_face_limit(hub_faces):
         cx.vertices, cx.vertex_quadrics, cx.vertex_refused, cx.edge_quadrics, cx.faces,
         cx.face_alive, cx.face_edge, lists.start, lists.count, lists.pool, hood.near,
         hood.generation, hood.retry, hood.part, heap.entries, heap.position, heap.size,
-        cost_key(np.inf), np.int64(1), np.bool_(False), False, simplify.RANK_TOLERANCE,
+        cost_key(np.inf), np.int64(1), np.bool_(False), False, options.rank_tolerance,
         np.zeros(QUADRIC_SIZE), np.zeros(3), look)
     retried = sorted(hood.retry[:n_retry].tolist())
     hub_retried = hub_faces <= RETRY_MAX_FACES

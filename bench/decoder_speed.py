@@ -67,8 +67,9 @@ def _write_case(mesh_path: Path, case: Path) -> dict[str, Any]:
     (case / "mesh.drc").write_bytes(drc)
     plan = {"vertices": pm.n_full, "faces": pm.n_faces_full}
     (case / "plan.json").write_text(json.dumps(plan))
-    return {**plan, "base_bytes": len(parts.base), "stream_bytes": len(parts.stream),
-            "draco_bytes": len(drc), "draco_vertices": len(vertices)}  # fmt: skip
+    return {**plan, "splits": pm.n_splits, "base_bytes": len(parts.base),
+            "stream_bytes": len(parts.stream), "draco_bytes": len(drc),
+            "draco_vertices": len(vertices)}  # fmt: skip
 
 
 def _node_times(case: Path, runs: int, node: str) -> dict[str, Any]:
@@ -145,6 +146,10 @@ def _verdict(values: list[float], target: float) -> str:
     return f"met on {met} of {len(values)} meshes (ratios {min(values):.2f} to {max(values):.2f})"
 
 
+def _per_item_us(ms: float, items: int | None) -> str:
+    return "-" if not items else f"{1000 * ms / items:.2f}"
+
+
 def write_report(path: Path, record: dict[str, Any]) -> None:
     rows = []
     for row in record["meshes"]:
@@ -153,6 +158,8 @@ def write_report(path: Path, record: dict[str, Any]) -> None:
         rows.append([
             row["mesh"], f"{row['vertices']:,}", f"{row['faces']:,}",
             f"{node_ms:.0f}", f"{draco_ms:.0f}", format_ratio(row["node_ratio"]),
+            _per_item_us(node_ms, row.get("splits")),
+            _per_item_us(draco_ms, row["draco_vertices"]),
             format_ms(statistics.median(row["python"]["progressive_s"])),
             format_ms(statistics.median(row["python"]["draco_s"])),
             format_ratio(row["python_ratio"]),
@@ -170,7 +177,10 @@ def write_report(path: Path, record: dict[str, Any]) -> None:
         "full level) against Draco's WebAssembly decoder (three.js's copy, as DRACOLoader "
         "runs it) in one node process; *Python*: `SplitStreamDecoder` against "
         f"`DracoPy.decode`. Draco: {DRACO_BITS}-bit positions, compression level "
-        f"{DRACO_LEVEL}. Ratios: progressive / Draco (below 1: faster or smaller).",
+        f"{DRACO_LEVEL}. Ratios: progressive / Draco (below 1: faster or smaller). Per "
+        "split and per vertex: the decode's time over the splits it applies, and Draco's "
+        "over the vertices it decodes (a split is one vertex more), which shows whether "
+        "the cost grows with the mesh (out of cache) or is a constant of the format.",
         "",
         *markdown_table(
             [
@@ -180,6 +190,8 @@ def write_report(path: Path, record: dict[str, Any]) -> None:
                 "refine.js ms",
                 "Draco wasm ms",
                 "node ratio",
+                "refine.js µs / split",
+                "Draco wasm µs / vertex",
                 "Python ms",
                 "DracoPy ms",
                 "Python ratio",
@@ -188,7 +200,7 @@ def write_report(path: Path, record: dict[str, Any]) -> None:
                 "bytes ratio",
             ],
             rows,
-            [False] + [True] * 11,
+            [False] + [True] * 13,
         ),  # fmt: skip
         "",
         "## Targets (issue #32)",

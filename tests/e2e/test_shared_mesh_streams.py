@@ -42,11 +42,12 @@ UPLOADED = tuple(name for name in MESHES if name != "igea.ply")
 
 class Built:
     """A shared mesh built as served, with its stored stream and that stream's frame
-    boundaries (the vertex count after each frame)."""
+    boundaries (the vertex count after each frame, from the stream's index)."""
 
     def __init__(self, name: str) -> None:
         self.pm = qem_core.build_mesh(qem_core.load_mesh(shared_mesh(name)))
-        self.stream, _ = encode_stored_stream(self.pm)
+        self.stream, index = encode_stored_stream(self.pm)
+        self.boundaries = list(index.vertices[1:])
         self.base = encode_level(self.pm, self.pm.n_base, "msgpack").content
 
 
@@ -62,26 +63,16 @@ def built():
     return build
 
 
-def boundaries(mesh: Built) -> list[int]:
-    """The level after each frame of the stored stream, read by the Python decoder."""
-    decoder = SplitStreamDecoder.from_msgpack(mesh.base)
-    ends = []
-    for payload in iter_frames([mesh.stream]):
-        decoder.feed(payload)
-        ends.append(decoder.n_vertices)
-    return ends
-
-
 @pytest.mark.parametrize("name", MESHES)
 def test_the_python_decoder_reaches_every_frame_boundary_exactly(built, name):
     mesh = built(name)
     pm, grid = mesh.pm, grid_for(mesh.pm)
     decoder = SplitStreamDecoder.from_msgpack(mesh.base)
-    frames = 0
+    reached = []
     for payload in iter_frames([mesh.stream]):
         decoder.feed(payload)
-        frames += 1
         n = decoder.n_vertices
+        reached.append(n)
         vertices, faces = pm.lod(n)
         assert np.array_equal(decoder.faces, faces), n
         assert np.array_equal(decoder.quantised, grid.quantise(vertices)), n
@@ -89,14 +80,14 @@ def test_the_python_decoder_reaches_every_frame_boundary_exactly(built, name):
         if wedges is not None:
             assert np.array_equal(decoder.face_wedges, wedges.face_wedges), n
             assert np.array_equal(decoder.quantised_values, wedges.values), n
-    assert decoder.n_vertices == pm.n_full and frames > 1
+    assert reached == mesh.boundaries and reached[-1] == pm.n_full and len(reached) > 1
 
 
 @pytest.mark.parametrize("name", MESHES)
 def test_refine_js_reaches_every_frame_boundary_exactly_down_and_up(built, name, tmp_path):
     mesh = built(name)
     pm = mesh.pm
-    ends = boundaries(mesh)
+    ends = mesh.boundaries
     between = [pm.n_base + 1, (pm.n_base + pm.n_full) // 2, pm.n_full - 1]
     up = sorted({pm.n_base, *ends, *between})
     visit = up[::-1] + up

@@ -482,13 +482,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         default=DEFAULT_FRACTION,
         help="peers simplify to this fraction of the referenced vertices",
     )
-    parser.add_argument(
-        "--qem-option",
-        action="append",
-        default=[],
-        metavar="NAME=VALUE",
-        help="a qem_core.BuildOptions field for the build; repeatable",
-    )
+    qem_lod.add_option_argument(parser, "a qem_core.BuildOptions field for the build; repeatable")
     parser.add_argument("--timeout", type=float, default=None, help="seconds per child process")
     parser.add_argument(
         "--stages",
@@ -499,17 +493,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.runs < 1:
         parser.error("--runs must be at least 1")
-    try:
-        option_values = qem_lod.parse_option_assignments(args.qem_option)
-    except ValueError as error:
-        parser.error(str(error))
+    option_values = qem_lod.option_values_of(parser, args)
     qem_note = qem_lod.qem_unavailable_reason()
-    if qem_note is None:
-        try:
-            qem_lod.validate_option_values(option_values)
-        except ValueError as error:
-            parser.error(str(error))
-    else:
+    if qem_note is not None:
         _progress(f"qem-lod: {qem_note}")
     mesh = load_bench_mesh(args.mesh_dir / args.mesh)
     entry = measure_build_speed(

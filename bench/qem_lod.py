@@ -8,6 +8,7 @@ only the extracted levels come back.
 
 from __future__ import annotations
 
+import argparse
 import time
 from collections.abc import Iterable, Sequence
 from typing import Any
@@ -18,9 +19,11 @@ from .meshes import warm_up_mesh
 
 __all__ = [
     "OptionValues",
+    "add_option_argument",
     "build_progressive_mesh",
     "describe_progressive_mesh",
     "extract_levels",
+    "option_values_of",
     "parse_option_assignments",
     "qem_unavailable_reason",
     "validate_option_values",
@@ -81,6 +84,26 @@ def validate_option_values(values: OptionValues) -> None:
     from qem_core import BuildOptions
 
     BuildOptions.from_mapping(values)
+
+
+def add_option_argument(parser: argparse.ArgumentParser, help: str) -> None:
+    """A benchmark's repeatable ``--qem-option NAME=VALUE`` (read by `option_values_of`)."""
+    parser.add_argument(
+        "--qem-option", action="append", default=[], metavar="NAME=VALUE", help=help
+    )
+
+
+def option_values_of(parser: argparse.ArgumentParser, args: argparse.Namespace) -> OptionValues:
+    """The build options of ``args.qem_option``; a malformed or refused one is the
+    parser's error (exit 2). Checked against `BuildOptions` only where qem_core imports,
+    so a benchmark can still measure the peers without it."""
+    try:
+        values = parse_option_assignments(args.qem_option)
+        if qem_unavailable_reason() is None:
+            validate_option_values(values)
+    except ValueError as error:
+        parser.error(str(error))
+    return values
 
 
 def variant_label(values: OptionValues) -> str:

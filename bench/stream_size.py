@@ -27,7 +27,9 @@ positions and faces only). Targets (issue 3): <= 10 bytes per split of geometry 
 stream without its wedge keys); long run: base + stream <= 1.5x Draco.
 
 Writes bench/results/stream-size.md (the meshes of this run) and merges each mesh's
-entry into bench/results/stream-size.json.
+entry into bench/results/stream-size.json (keyed by the mesh's name, followed by
+`qem-lod[name=value,...]` for a run with --qem-option, so a variant's entries sit
+beside the defaults').
 """
 
 from __future__ import annotations
@@ -219,7 +221,7 @@ def measure_stream_size(
 def _options_phrase(options: dict[str, Any] | None) -> str:
     if not options:
         return " (default options)"
-    return " with " + ", ".join(f"`{name}={value}`" for name, value in sorted(options.items()))
+    return f" with the build options of `{qem_lod.variant_label(options)}`"
 
 
 def _count(value: int | None) -> str:
@@ -419,17 +421,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--meshes", nargs="+", default=list(DEFAULT_STREAM_MESHES))
     parser.add_argument("--bits", type=int, default=DEFAULT_BITS, help="grid bits per axis")
     parser.add_argument("--draco-levels", type=int, nargs="+", default=list(DEFAULT_DRACO_LEVELS))
-    parser.add_argument(
-        "--qem-option", action="append", default=[], metavar="NAME=VALUE",
-        help="a qem_core.BuildOptions field for the builds; repeat to combine",
+    qem_lod.add_option_argument(
+        parser, "a qem_core.BuildOptions field for the builds; repeat to combine"
     )
     arguments = list(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(arguments)
-    try:
-        options = qem_lod.parse_option_assignments(args.qem_option)
-        qem_lod.validate_option_values(options)
-    except ValueError as error:
-        parser.error(str(error))
+    options = qem_lod.option_values_of(parser, args)
     qem_note = qem_lod.qem_unavailable_reason()
     if qem_note is not None:
         progress(f"qem-lod: {qem_note}; nothing to measure")
@@ -460,7 +457,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     report_path = args.out_dir / "stream-size.md"
     write_stream_size_report(report_path, entries, settings)
     json_path = args.out_dir / "stream-size.json"
-    merge_results(json_path, {entry["mesh"]: {**entry, "settings": settings} for entry in entries})
+    # A run with build options is kept beside the default's entries, not over them.
+    suffix = f" {qem_lod.variant_label(options)}" if options else ""
+    merge_results(
+        json_path, {entry["mesh"] + suffix: {**entry, "settings": settings} for entry in entries}
+    )
     progress(f"wrote {report_path} and {json_path}")
     return 0 if all(entry["status"] == "ok" for entry in entries) else 1
 

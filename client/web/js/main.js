@@ -18,6 +18,13 @@ const $ = (id) => document.getElementById(id);
 const LIST_POLL_MS = 2000; // while some mesh is queued or building
 const BUILD_POLL_MS = 500; // while an upload of this page is building
 const ERROR_DELAY_MS = 300; // ask for a level's error once the slider rests this long
+// While a stream arrives the HUD's figures change at most this often. Each change of its
+// text is work for the page and its compositor, and they came with every chunk and
+// record, beside the decoder's worker on the same cores: with a GL on the CPU, in six
+// alternating runs on two cores, the worker decoded dragon in a median 1.27 s with them
+// and 1.22 s so held (1.19 s with no HUD at all while streaming). The figures are exact
+// again when the stream ends.
+const STREAM_STATS_MS = 250;
 
 const count = (n) => Number(n).toLocaleString("en-US");
 const sleep = (ms, signal) =>
@@ -295,6 +302,8 @@ async function load(source) {
     streamedMs: null, // every frame received and stored
     errors: new Map(), // level -> quadric error, from X-Lod-Error
     errorTimer: null,
+    statsTimer: null, // the HUD's next update while streaming (updateStatsSoon)
+    statsShownAt: -Infinity, // performance.now() of its last update
     failure: null,
   };
   const current = view;
@@ -328,7 +337,7 @@ async function load(source) {
         const done = levels.received - levels.nBase;
         const left = levels.nFull - levels.received;
         scene.changed(true, done > 0 ? ((performance.now() - streamStarted) * left) / done : Infinity);
-        updateStats();
+        updateStatsSoon(current);
       },
     });
     current.decoding = decoding;
@@ -337,7 +346,7 @@ async function load(source) {
         signal,
         onBytes: (n) => {
           current.splitBytes = n;
-          updateStats();
+          updateStatsSoon(current);
         },
       });
       await decoding.finish();
@@ -398,10 +407,24 @@ function setWant(n) {
   updateStats();
 }
 
+/** The HUD's update for a change while the stream arrives: at most every
+ * STREAM_STATS_MS, the last change included. */
+function updateStatsSoon(current) {
+  if (current.statsTimer !== null) return;
+  const wait = Math.max(0, current.statsShownAt + STREAM_STATS_MS - performance.now());
+  current.statsTimer = setTimeout(() => {
+    current.statsTimer = null;
+    if (current === view) updateStats();
+  }, wait);
+}
+
 function updateStats() {
   const current = view;
   const levels = current?.levels;
   if (!levels) return;
+  clearTimeout(current.statsTimer);
+  current.statsTimer = null;
+  current.statsShownAt = performance.now();
   const set = (id, text, value) => {
     const node = $(id);
     node.textContent = text;

@@ -303,7 +303,6 @@ async function load(source) {
     errors: new Map(), // level -> quadric error, from X-Lod-Error
     errorTimer: null,
     statsTimer: null, // the HUD's next update while streaming (updateStatsSoon)
-    statsShownAt: -Infinity, // performance.now() of its last update
     failure: null,
   };
   const current = view;
@@ -407,24 +406,20 @@ function setWant(n) {
   updateStats();
 }
 
-/** The HUD's update for a change while the stream arrives: at most every
- * STREAM_STATS_MS, the last change included. */
+/** The HUD's update for a change while the stream arrives: one STREAM_STATS_MS later,
+ * with every change made meanwhile. */
 function updateStatsSoon(current) {
   if (current.statsTimer !== null) return;
-  const wait = Math.max(0, current.statsShownAt + STREAM_STATS_MS - performance.now());
   current.statsTimer = setTimeout(() => {
     current.statsTimer = null;
     if (current === view) updateStats();
-  }, wait);
+  }, STREAM_STATS_MS);
 }
 
 function updateStats() {
   const current = view;
   const levels = current?.levels;
   if (!levels) return;
-  clearTimeout(current.statsTimer);
-  current.statsTimer = null;
-  current.statsShownAt = performance.now();
   const set = (id, text, value) => {
     const node = $(id);
     node.textContent = text;

@@ -28,6 +28,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -35,7 +36,10 @@ from .meshes import compact_referenced
 from .report import format_ms, format_ratio, markdown_table
 from .runs import bench_parser, progress, record_run, run_header_lines
 
-__all__ = ["main", "measure_decoder_speed"]
+__all__ = [
+    "main", "measure_decoder_speed", "mesh_cases", "node_version",
+    "node_with_viewer_packages", "run_mesh_bench", "run_node_driver", "write_case",
+]  # fmt: skip
 
 REPO = Path(__file__).resolve().parent.parent
 WEB = REPO / "client" / "web"
@@ -47,8 +51,9 @@ TARGET_TIME_FACTOR = 1.5  # issue #32: decoding <= 1.5x Draco's wasm decoder
 TARGET_BYTES_FACTOR = 1.5  # and base + stream <= 1.5x Draco 16-bit level 7
 
 
-def _write_case(mesh_path: Path, case: Path) -> dict[str, Any]:
-    """Build and export the mesh into `case`; its sizes."""
+def write_case(mesh_path: Path, case: Path) -> tuple[Any, dict[str, Any]]:
+    """Build and export the mesh into `case` (what bench/node/decoder_speed.mjs reads);
+    the progressive mesh and its sizes."""
     import DracoPy
 
     import qem_core
@@ -67,14 +72,27 @@ def _write_case(mesh_path: Path, case: Path) -> dict[str, Any]:
     (case / "mesh.drc").write_bytes(drc)
     plan = {"vertices": pm.n_full, "faces": pm.n_faces_full}
     (case / "plan.json").write_text(json.dumps(plan))
-    return {**plan, "splits": pm.n_splits, "base_bytes": len(parts.base),
+    return pm, {**plan, "splits": pm.n_splits, "base_bytes": len(parts.base),
             "stream_bytes": len(parts.stream), "draco_bytes": len(drc),
             "draco_vertices": len(vertices)}  # fmt: skip
 
 
-def _node_times(case: Path, runs: int, node: str) -> dict[str, Any]:
+def mesh_cases(
+    mesh_dir: Path, meshes: list[str], prefix: str
+) -> Iterator[tuple[str, Path, Any, dict]]:
+    """Each mesh built and written as a case (`write_case`) in a temporary folder that
+    lasts while the caller iterates: (name, case folder, progressive mesh, sizes)."""
+    with tempfile.TemporaryDirectory(prefix=prefix) as work:
+        for name in meshes:
+            case = Path(work) / Path(name).stem
+            pm, sizes = write_case(mesh_dir / name, case)
+            yield name, case, pm, sizes
+
+
+def run_node_driver(node: str, driver: Path, *arguments: object) -> dict[str, Any]:
+    """The JSON line a node driver prints, given client/web and `arguments`."""
     done = subprocess.run(
-        [node, str(NODE_DRIVER), str(WEB), str(case), str(runs)],
+        [node, str(driver), str(WEB), *map(str, arguments)],
         capture_output=True, text=True, timeout=1800, check=False,
     )  # fmt: skip
     if done.returncode != 0:
@@ -111,34 +129,41 @@ def _python_times(case: Path, runs: int) -> dict[str, list[float]]:
     return times
 
 
-def measure_decoder_speed(mesh_dir: Path, meshes: list[str], runs: int) -> dict[str, Any]:
+def node_with_viewer_packages() -> str:
+    """The path of node, once node and client/web/node_modules are known to be there."""
     node = shutil.which("node")
     if node is None:
         raise SystemExit("node is missing: install Node.js >= 18 (see the README)")
     if not (WEB / "node_modules" / "three").is_dir():
         raise SystemExit("client/web/node_modules is missing: run `make install`")
+    return node
+
+
+def node_version(node: str) -> str:
+    done = subprocess.run([node, "--version"], capture_output=True, text=True, check=False)
+    return done.stdout.strip()
+
+
+def measure_decoder_speed(mesh_dir: Path, meshes: list[str], runs: int) -> dict[str, Any]:
+    node = node_with_viewer_packages()
     rows = []
-    with tempfile.TemporaryDirectory(prefix="qem-bench-decoder-") as work:
-        for name in meshes:
-            case = Path(work) / Path(name).stem
-            sizes = _write_case(mesh_dir / name, case)
-            in_node = _node_times(case, runs, node)
-            in_python = _python_times(case, runs)
-            node_ms = statistics.median(in_node["progressive_ms"])
-            draco_ms = statistics.median(in_node["draco_ms"])
-            py_s = statistics.median(in_python["progressive_s"])
-            dracopy_s = statistics.median(in_python["draco_s"])
-            if in_node["progressive_result"]["faces"] != sizes["faces"]:
-                raise RuntimeError(f"{name}: the viewer's decoder stopped short of the full mesh")
-            rows.append({
-                "mesh": name, **sizes, "node": in_node, "python": in_python,
-                "node_ratio": node_ms / draco_ms, "python_ratio": py_s / dracopy_s,
-                "bytes_ratio": (sizes["base_bytes"] + sizes["stream_bytes"]) / sizes["draco_bytes"],
-            })  # fmt: skip
-            progress(f"{name}: node {node_ms:.0f} ms vs Draco wasm {draco_ms:.0f} ms; "
-                     f"Python {py_s * 1e3:.0f} ms vs DracoPy {dracopy_s * 1e3:.0f} ms")  # fmt: skip
-    version = subprocess.run([node, "--version"], capture_output=True, text=True, check=False)
-    return {"meshes": rows, "node_version": version.stdout.strip()}
+    for name, case, _, sizes in mesh_cases(mesh_dir, meshes, "qem-bench-decoder-"):
+        in_node = run_node_driver(node, NODE_DRIVER, case, runs)
+        in_python = _python_times(case, runs)
+        node_ms = statistics.median(in_node["progressive_ms"])
+        draco_ms = statistics.median(in_node["draco_ms"])
+        py_s = statistics.median(in_python["progressive_s"])
+        dracopy_s = statistics.median(in_python["draco_s"])
+        if in_node["progressive_result"]["faces"] != sizes["faces"]:
+            raise RuntimeError(f"{name}: the viewer's decoder stopped short of the full mesh")
+        rows.append({
+            "mesh": name, **sizes, "node": in_node, "python": in_python,
+            "node_ratio": node_ms / draco_ms, "python_ratio": py_s / dracopy_s,
+            "bytes_ratio": (sizes["base_bytes"] + sizes["stream_bytes"]) / sizes["draco_bytes"],
+        })  # fmt: skip
+        progress(f"{name}: node {node_ms:.0f} ms vs Draco wasm {draco_ms:.0f} ms; "
+                 f"Python {py_s * 1e3:.0f} ms vs DracoPy {dracopy_s * 1e3:.0f} ms")  # fmt: skip
+    return {"meshes": rows, "node_version": node_version(node)}
 
 
 def _verdict(values: list[float], target: float) -> str:
@@ -216,15 +241,23 @@ def write_report(path: Path, record: dict[str, Any]) -> None:
     path.write_text("\n".join(lines))
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = bench_parser("python -m bench.decoder_speed", __doc__)
+def run_mesh_bench(
+    argv: list[str] | None, module: str, doc: str | None, name: str, measure: Any, report: Any
+) -> int:
+    """The command line of the node decoding benchmarks: --meshes and --runs, then
+    ``measure(mesh_dir, meshes, runs)`` recorded as results/<name>.md by ``report``."""
+    parser = bench_parser(f"python -m {module}", doc)
     parser.add_argument("--meshes", nargs="+", default=list(DEFAULT_MESHES))
     parser.add_argument("--runs", type=int, default=5)
     args = parser.parse_args(argv)
-    record_run("bench.decoder_speed", args, "decoder-speed",
-               lambda: measure_decoder_speed(args.mesh_dir, args.meshes, args.runs),
-               write_report, runs=args.runs)  # fmt: skip
+    record_run(module, args, name, lambda: measure(args.mesh_dir, args.meshes, args.runs),
+               report, runs=args.runs)  # fmt: skip
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_mesh_bench(argv, "bench.decoder_speed", __doc__, "decoder-speed",
+                          measure_decoder_speed, write_report)  # fmt: skip
 
 
 if __name__ == "__main__":

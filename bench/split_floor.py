@@ -21,6 +21,7 @@ bench/results/split-floor.md and .json.
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import statistics
 import subprocess
@@ -32,14 +33,19 @@ from typing import Any
 import numpy as np
 
 from .decoder_speed import (
-    WEB, node_version, node_with_viewer_packages, run_mesh_bench, write_case,
-)  # fmt: skip
+    mesh_cases,
+    node_version,
+    node_with_viewer_packages,
+    run_mesh_bench,
+    run_node_driver,
+)
 from .report import format_ratio, markdown_table
 from .runs import progress, run_header_lines
 
 __all__ = ["main", "measure_split_floor"]
 
 NODE_DRIVER = Path(__file__).resolve().parent / "node" / "split_floor.mjs"
+FLOOR_C = NODE_DRIVER.with_suffix(".c")
 # Each floor symbol codes about 3.75 bits: a split decodes as many as its stream's bits
 # a split need (dragon 12, bunny 16).
 BITS_PER_SYMBOL = 3.75
@@ -47,6 +53,8 @@ TARGET_TIME_FACTOR = 1.5  # issue #32: decoding <= 1.5x Draco's wasm decoder
 DECODERS = (
     ("floor_ms", "floor"),
     ("floor_index_ms", "floor + index buffer"),
+    ("wasm_ms", "wasm floor"),
+    ("wasm_index_ms", "wasm floor + index buffer"),
     ("refine_ms", "refine.js"),
     ("draco_ms", "Draco wasm"),
 )
@@ -74,79 +82,110 @@ def _write_split_arrays(pm: Any, case: Path) -> None:
     (case / "floor.json").write_text(json.dumps(sizes))
 
 
+def _build_floor_wasm(folder: Path) -> Path | None:
+    """split_floor.c built for WebAssembly with the bench extra's ziglang; None without
+    ziglang (the report says so)."""
+    if importlib.util.find_spec("ziglang") is None:
+        return None
+    wasm = folder / "split_floor.wasm"
+    subprocess.run(
+        [sys.executable, "-m", "ziglang", "cc", "--target=wasm32-freestanding", "-O3",
+         "-mbulk-memory", "-nostdlib", "-Wl,--no-entry", "-Wl,--export=floor_decode",
+         "-Wl,--import-memory", "-o", str(wasm), str(FLOOR_C)],
+        check=True, capture_output=True, timeout=600,
+    )  # fmt: skip
+    return wasm
+
+
 def measure_split_floor(mesh_dir: Path, meshes: list[str], runs: int) -> dict[str, Any]:
     node = node_with_viewer_packages()
     rows = []
-    with tempfile.TemporaryDirectory(prefix="qem-bench-floor-") as work:
-        for name in meshes:
-            case = Path(work) / Path(name).stem
-            pm, sizes = write_case(mesh_dir / name, case)
-            _write_split_arrays(pm, case)
-            stream_bits = 8 * sizes["stream_bytes"] / sizes["splits"]
-            symbols = max(1, round(stream_bits / BITS_PER_SYMBOL))
-            done = subprocess.run(
-                [node, str(NODE_DRIVER), str(WEB), str(case), str(runs), str(symbols)],
-                capture_output=True, text=True, timeout=1800, check=False,
-            )  # fmt: skip
-            if done.returncode != 0:
-                raise RuntimeError(f"node driver failed: {done.stderr.strip()[-2000:]}")
-            times = json.loads(done.stdout)
-            rows.append({"mesh": name, **sizes, "times": times, "symbols": symbols,
-                         "stream_bits_per_split": stream_bits})  # fmt: skip
-            medians = {key: statistics.median(times[key]) for key, _ in DECODERS}
-            shown = ", ".join(f"{label} {medians[key]:.0f} ms" for key, label in DECODERS)
-            progress(f"{name}: {shown}")
-    return {"meshes": rows, "node_version": node_version(node)}
+    with tempfile.TemporaryDirectory(prefix="qem-bench-floor-wasm-") as folder:
+        wasm = _build_floor_wasm(Path(folder))
+        for name, case, pm, sizes in mesh_cases(mesh_dir, meshes, "qem-bench-floor-"):
+            rows.append(_measure_case(node, wasm, name, case, pm, sizes, runs))
+    return {"meshes": rows, "node_version": node_version(node), "wasm_floor": wasm is not None}
+
+
+def _measure_case(node: str, wasm: Path | None, name: str, case: Path, pm: Any,
+                  sizes: dict[str, Any], runs: int) -> dict[str, Any]:  # fmt: skip
+    _write_split_arrays(pm, case)
+    stream_bits = 8 * sizes["stream_bytes"] / sizes["splits"]
+    symbols = max(1, round(stream_bits / BITS_PER_SYMBOL))
+    times = run_node_driver(node, NODE_DRIVER, case, runs, symbols, *([wasm] if wasm else []))
+    shown = ", ".join(f"{label} {statistics.median(times[key]):.0f} ms"
+                      for key, label in DECODERS if key in times)  # fmt: skip
+    progress(f"{name}: {shown}")
+    return {"mesh": name, **sizes, "times": times, "symbols": symbols,
+            "stream_bits_per_split": stream_bits}  # fmt: skip
+
+
+def _medians(row: dict[str, Any]) -> dict[str, float]:
+    return {key: statistics.median(row["times"][key]) for key, _ in DECODERS if key in row["times"]}
 
 
 def write_report(path: Path, record: dict[str, Any]) -> None:
-    rows = []
+    shown = [(key, label) for key, label in DECODERS if key in record["meshes"][0]["times"]]
+    rows, per_split = [], []
     for row in record["meshes"]:
-        medians = {key: statistics.median(row["times"][key]) for key, _ in DECODERS}
+        medians = _medians(row)
         draco = medians["draco_ms"]
         cells = [row["mesh"], f"{row['splits']:,}"]
-        for key, _ in DECODERS:
-            items = row["draco_vertices"] if key == "draco_ms" else row["splits"]
-            cells += [f"{medians[key]:.0f}", f"{1e6 * medians[key] / items:.0f}"]
-        cells += [format_ratio(medians[key] / draco) for key, _ in DECODERS[:3]]
+        cells += [f"{medians[key]:.0f} ({format_ratio(medians[key] / draco)})" for key, _ in shown]
         floor_bits = row["times"]["floor_bits_per_split"]
-        cells.append(f"{floor_bits:.1f} / {row['stream_bits_per_split']:.1f}")
-        rows.append(cells)
-    headers = ["mesh", "splits"]
-    for _, label in DECODERS:
-        headers += [f"{label} ms", f"{label} ns / {'vertex' if label == 'Draco wasm' else 'split'}"]
-    headers += ["floor / Draco", "floor + index / Draco", "refine.js / Draco",
-                "bits a split: floor / stream"]  # fmt: skip
-    floors = [
-        statistics.median(row["times"]["floor_ms"]) / statistics.median(row["times"]["draco_ms"])
-        for row in record["meshes"]
-    ]
+        rows.append([*cells, f"{floor_bits:.1f} / {row['stream_bits_per_split']:.1f}"])
+        items = {
+            key: row["draco_vertices"] if key == "draco_ms" else row["splits"] for key, _ in shown
+        }
+        per_split.append(
+            [row["mesh"], *(f"{1e6 * medians[key] / items[key]:.0f}" for key, _ in shown)]
+        )
+    headers = ["mesh", "splits", *(f"{label} ms (x Draco)" for _, label in shown),
+               "bits a split: floor / stream"]  # fmt: skip
+    best_key = "wasm_ms" if record.get("wasm_floor") else "floor_ms"
+    floors = [_medians(row)[best_key] / _medians(row)["draco_ms"] for row in record["meshes"]]
     met = [row["mesh"] for row, ratio in zip(record["meshes"], floors, strict=True)
            if ratio <= TARGET_TIME_FACTOR]  # fmt: skip
+    wasm_note = (
+        "*wasm floor*: the same floor in C (bench/node/split_floor.c) built for "
+        "WebAssembly by ziglang's clang, its records copied out of its memory as Draco's "
+        "are; "
+        if record.get("wasm_floor")
+        else "(no *wasm floor*: ziglang, in the bench extra, was not installed); "
+    )
     lines = [
         "# The floor under a split-by-split decoder, against refine.js and Draco",
         "",
         *run_header_lines(record),
         f"Node {record['node_version']}.",
         "",
-        f"Median of {record['runs']} decodes each, the four alternating in one node process "
-        "after one untimed decode each. *floor*: the least a decoder of the mesh's real "
-        "split sequence does (per-vertex blocks of an ordered-fan state, the blocks each "
-        "split must touch, as many rANS symbols a split as its stream's bits need, records "
-        "out); *floor + index buffer*: the same keeping a face index buffer; *refine.js*: "
-        "the viewer's decoder (stream version 5, base + whole stored stream to the full "
-        "level); *Draco wasm*: three.js's copy of Draco's decoder on the same mesh at 16 "
-        "bits, level 7. The floor is a lower bound (its arithmetic stands in for a "
-        "format's), not a decoder: see "
-        'docs/performance.md, "The floor under a split decoder".',
+        f"Median of {record['runs']} decodes each, the decoders alternating in one node "
+        "process after one untimed decode each. *floor*: the least a decoder of the mesh's "
+        "real split sequence does (per-vertex blocks of an ordered-fan state, the blocks "
+        "each split must touch, as many rANS symbols a split as its stream's bits need, "
+        "records out); *+ index buffer*: the same keeping a face index buffer; "
+        + wasm_note
+        + "*refine.js*: the viewer's decoder (stream version 5, base + whole stored stream "
+        "to the full level); *Draco wasm*: three.js's copy of Draco's decoder on the same "
+        "mesh at 16 bits, level 7. The floor is a lower bound (its arithmetic stands in for "
+        "a format's), not a decoder: see docs/performance.md, \"The floor under a split "
+        'decoder".',
         "",
         *markdown_table(headers, rows, [False] + [True] * (len(headers) - 1)),
         "",
+        "Per split (Draco: per vertex), ns:",
+        "",
+        *markdown_table(
+            ["mesh", *(label for _, label in shown)], per_split, [False] + [True] * len(shown)
+        ),  # fmt: skip
+        "",
         f"## Against issue #32's decoding target (<= {TARGET_TIME_FACTOR}x Draco)",
         "",
-        f"- the floor is within it on {len(met)} of {len(floors)} meshes"
+        f"- the {'wasm ' if record.get('wasm_floor') else ''}floor is within it on "
+        f"{len(met)} of {len(floors)} meshes"
         + (f" ({', '.join(met)})" if met else "")
-        + f"; floor / Draco from {min(floors):.2f} to {max(floors):.2f}.",
+        + f"; floor / Draco from {min(floors):.2f} to {max(floors):.2f}. A decoder of this "
+        "split order does more than its floor.",
         "",
     ]
     path.write_text("\n".join(lines))

@@ -1,7 +1,7 @@
 // The least a split-by-split decoder of a mesh's real split sequence costs in node, timed
 // beside the viewer's decoder (refine.js) and Draco's WebAssembly decoder in one process.
 //
-//   node split_floor.mjs WEB_DIR CASE_DIR RUNS SYMBOLS
+//   node split_floor.mjs WEB_DIR CASE_DIR RUNS SYMBOLS [FLOOR_WASM]
 //
 // CASE_DIR holds what bench/node/decoder_speed.mjs reads (base.msgpack, stream.qsplits,
 // mesh.drc, plan.json) and the progressive mesh's split arrays as little-endian int32
@@ -21,13 +21,15 @@
 // the floor's memory traffic is the real mesh's; its arithmetic is not a real format's,
 // so it is a lower bound, not a decoder. Variant `index` also applies the relabels and
 // the new faces to a face index buffer, as a decoder that holds the mesh itself does.
+// FLOOR_WASM, split_floor.c built for WebAssembly, times the same two in wasm as well
+// (wasm_ms, wasm_index_ms; the records copied out of its memory, as Draco's are).
 //
 // Prints one JSON line: each decoder's times (ms) and the floor's coded bits a split.
 import { readFileSync } from "node:fs";
 import { loadDracoDecoder } from "./draco_wasm.mjs";
 import { loadRefineCase } from "./refine_case.mjs";
 
-const [web, dir, runsArg, symbolsArg] = process.argv.slice(2);
+const [web, dir, runsArg, symbolsArg, floorWasm] = process.argv.slice(2);
 const runs = Number(runsArg);
 const symbols = Number(symbolsArg);
 const sizes = JSON.parse(readFileSync(`${dir}/floor.json`, "utf8"));
@@ -241,6 +243,46 @@ function decodeFloor(withIndex) {
   return performance.now() - start;
 }
 
+/** decodeFloor compiled from split_floor.c: its inputs placed in its memory once. */
+function loadWasmFloor(path) {
+  const inputs = [baseQ, baseFaces, splitVertex, movedOffsets, moved, wingOffsets, wings,
+    relabelOffsets, relabelFaces, newFaces, newFaceCounts, coded, freq, cum, letterAt];
+  const outputs = {
+    blocks: 4 * BLOCK * nFull,
+    faces: 12 * fFull,
+    recordFaces: 4 * relabelFaces.length,
+    recordNew: 4 * newFaces.length,
+    deltas: 24 * nSplits,
+  };
+  const align = (n) => (n + 15) & ~15;
+  const bytes = [...inputs.map((a) => a.byteLength), ...Object.values(outputs)].reduce((a, b) => a + align(b), 1024);
+  const memory = new WebAssembly.Memory({ initial: Math.ceil(bytes / 65536) });
+  const module = new WebAssembly.Module(readFileSync(path));
+  const { floor_decode: floorDecode } = new WebAssembly.Instance(module, { env: { memory } }).exports;
+  let heap = 1024; // offset 0 is the null pointer
+  const reserve = (n) => {
+    const at = heap;
+    heap += align(n);
+    return at;
+  };
+  const placed = inputs.map((array) => {
+    const at = reserve(array.byteLength);
+    new Uint8Array(memory.buffer, at, array.byteLength).set(new Uint8Array(array.buffer, array.byteOffset, array.byteLength));
+    return at;
+  });
+  const at = Object.fromEntries(Object.entries(outputs).map(([name, n]) => [name, reserve(n)]));
+  return function decodeWasm(withIndex) {
+    const start = performance.now();
+    const read = floorDecode(nBase, nFull, fBase, fFull, symbols, ...placed, at.blocks,
+      withIndex ? at.faces : 0, at.recordFaces, at.recordNew, at.deltas);
+    if (read !== coded.length) throw new Error(`the wasm floor read ${read} of ${coded.length} coded bytes`);
+    for (const name of ["recordFaces", "recordNew", "deltas", ...(withIndex ? ["faces"] : [])]) {
+      new Int32Array(memory.buffer, at[name], outputs[name] / 4).slice();
+    }
+    return performance.now() - start;
+  };
+}
+
 const decodeRefine = await loadRefineCase(web, dir);
 const decodeDraco = await loadDracoDecoder(web);
 const drc = readFileSync(`${dir}/mesh.drc`);
@@ -251,6 +293,11 @@ const decoders = {
   refine_ms: () => decodeRefine().ms,
   draco_ms: () => decodeDraco(drc).ms,
 };
+if (floorWasm) {
+  const decodeWasm = loadWasmFloor(floorWasm);
+  decoders.wasm_ms = () => decodeWasm(false);
+  decoders.wasm_index_ms = () => decodeWasm(true);
+}
 const out = Object.fromEntries(Object.keys(decoders).map((key) => [key, []]));
 for (const decode of Object.values(decoders)) decode(); // untimed: compiled
 for (let run = 0; run < runs; run++) {

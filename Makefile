@@ -18,8 +18,12 @@ $(WEB)/node_modules/.package-lock.json: $(WEB)/package-lock.json
 	cd $(WEB) && npm ci --no-audit --no-fund
 	touch $@
 
+# The viewer's WebAssembly split decoder, compiled from C by the dev extra's ziglang.
+$(WEB)/js/refine.wasm: $(WEB)/wasm/refine.c client/build_wasm.py $(BIN)/qem
+	$(BIN)/python client/build_wasm.py
+
 .PHONY: install serve test lint bench fuzz
-install: $(BIN)/qem $(WEB)/node_modules/.package-lock.json
+install: $(BIN)/qem $(WEB)/node_modules/.package-lock.json $(WEB)/js/refine.wasm
 
 serve: install
 	$(BIN)/qem serve --demo

@@ -1,12 +1,13 @@
-"""Build hook: the wheel carries the web viewer with its npm packages.
+"""Build hook: the wheel carries the web viewer with its npm packages and its wasm.
 
 Everything else is in pyproject.toml. A wheel (``pip wheel .``) installed on a machine
 without npm must still serve a working viewer, so building one needs the viewer's
 packages in client/web/node_modules: they are installed from the lockfile (``npm ci``)
 when missing, and the build stops with a message when npm is not there either. Only the
-files the viewer loads go in (client/viewer_files.py), not all of node_modules. An
-editable install (``make install``) serves client/web from the source tree and needs
-none of this.
+files the viewer loads go in (client/viewer_files.py), not all of node_modules. The
+WebAssembly split decoder (client/web/js/refine.wasm) is compiled from its C source when
+missing (client/build_wasm.py, with the ziglang that the build requires). An editable
+install (``make install``) serves client/web from the source tree and needs none of this.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ ROOT = Path(__file__).resolve().parent
 WEB = ROOT / "client" / "web"
 _files = runpy.run_path(str(ROOT / "client" / "viewer_files.py"))
 VIEWER_FILES, VIEWER_PACKAGES = _files["VIEWER_FILES"], _files["VIEWER_PACKAGES"]
+_wasm = runpy.run_path(str(ROOT / "client" / "build_wasm.py"))
 
 
 def _missing_packages() -> list[str]:
@@ -39,6 +41,10 @@ def _package_data() -> list[str]:
 
 class BuildWithViewer(build_py):
     def run(self) -> None:
+        if not getattr(self, "editable_mode", False) and not _wasm["TARGET"].exists():
+            _wasm["build"]()
+            self.package_data["client"] = _package_data()
+            self.data_files = self._get_data_files()
         if not getattr(self, "editable_mode", False) and _missing_packages():
             npm = shutil.which("npm")
             if npm is None:

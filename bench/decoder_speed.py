@@ -9,8 +9,10 @@ compression level 7 (draco_encoder's default; DracoPy). Then:
 
 - **node**: ``bench/node/decoder_speed.mjs`` times the viewer's decoder
   (client/web/js/refine.js: base + whole stream to the full level, the buffers a renderer
-  reads) and Draco's WebAssembly decoder (three.js's copy, as DRACOLoader runs it, positions
-  and indices copied out), alternating, in one node process, after one untimed run each;
+  reads), its frames decoded in JavaScript and by the WebAssembly split decoder
+  (js/refine.wasm, which the viewer's worker uses for a mesh without wedges), and Draco's
+  WebAssembly decoder (three.js's copy, as DRACOLoader runs it, positions and indices
+  copied out), alternating, in one node process, after one untimed run each;
 - **Python**: ``qem_core.stream.SplitStreamDecoder`` (from the base msgpack, every frame
   fed) against ``DracoPy.decode``, alternating, after one untimed run each.
 
@@ -151,17 +153,23 @@ def measure_decoder_speed(mesh_dir: Path, meshes: list[str], runs: int) -> dict[
         in_node = run_node_driver(node, NODE_DRIVER, case, runs)
         in_python = _python_times(case, runs)
         node_ms = statistics.median(in_node["progressive_ms"])
+        wasm_ms = statistics.median(in_node["wasm_ms"])
         draco_ms = statistics.median(in_node["draco_ms"])
         py_s = statistics.median(in_python["progressive_s"])
         dracopy_s = statistics.median(in_python["draco_s"])
-        if in_node["progressive_result"]["faces"] != sizes["faces"]:
-            raise RuntimeError(f"{name}: the viewer's decoder stopped short of the full mesh")
+        for result in ("progressive_result", "wasm_result"):
+            if in_node[result]["faces"] != sizes["faces"]:
+                raise RuntimeError(f"{name}: the viewer's decoder stopped short of the full mesh")
+        if in_node["wasm_result"]["decoder"] != "wasm":
+            raise RuntimeError(f"{name}: refine.js did not decode in WebAssembly")
         rows.append({
             "mesh": name, **sizes, "node": in_node, "python": in_python,
-            "node_ratio": node_ms / draco_ms, "python_ratio": py_s / dracopy_s,
+            "node_ratio": node_ms / draco_ms, "wasm_ratio": wasm_ms / draco_ms,
+            "python_ratio": py_s / dracopy_s,
             "bytes_ratio": (sizes["base_bytes"] + sizes["stream_bytes"]) / sizes["draco_bytes"],
         })  # fmt: skip
-        progress(f"{name}: node {node_ms:.0f} ms vs Draco wasm {draco_ms:.0f} ms; "
+        progress(f"{name}: node {node_ms:.0f} ms, in wasm {wasm_ms:.0f} ms, vs Draco wasm "
+                 f"{draco_ms:.0f} ms; "
                  f"Python {py_s * 1e3:.0f} ms vs DracoPy {dracopy_s * 1e3:.0f} ms")  # fmt: skip
     return {"meshes": rows, "node_version": node_version(node)}
 
@@ -179,11 +187,13 @@ def write_report(path: Path, record: dict[str, Any]) -> None:
     rows = []
     for row in record["meshes"]:
         node_ms = statistics.median(row["node"]["progressive_ms"])
+        wasm_ms = statistics.median(row["node"]["wasm_ms"])
         draco_ms = statistics.median(row["node"]["draco_ms"])
         rows.append([
             row["mesh"], f"{row['vertices']:,}", f"{row['faces']:,}",
-            f"{node_ms:.0f}", f"{draco_ms:.0f}", format_ratio(row["node_ratio"]),
-            _per_item_us(node_ms, row.get("splits")),
+            f"{node_ms:.0f}", f"{wasm_ms:.0f}", f"{draco_ms:.0f}",
+            format_ratio(row["node_ratio"]), format_ratio(row["wasm_ratio"]),
+            _per_item_us(node_ms, row.get("splits")), _per_item_us(wasm_ms, row.get("splits")),
             _per_item_us(draco_ms, row["draco_vertices"]),
             format_ms(statistics.median(row["python"]["progressive_s"])),
             format_ms(statistics.median(row["python"]["draco_s"])),
@@ -199,8 +209,10 @@ def write_report(path: Path, record: dict[str, Any]) -> None:
         "",
         f"Median of {record['runs']} decodes each, alternating, after one untimed decode "
         "each. *node*: the viewer's decoder (refine.js, base + whole stored stream to the "
-        "full level) against Draco's WebAssembly decoder (three.js's copy, as DRACOLoader "
-        "runs it) in one node process; *Python*: `SplitStreamDecoder` against "
+        "full level), its frames decoded in JavaScript (*refine.js*) and by the WebAssembly "
+        "split decoder (*in wasm*: js/refine.wasm, what the viewer's worker runs for a mesh "
+        "without wedges), against Draco's WebAssembly decoder (three.js's copy, as "
+        "DRACOLoader runs it) in one node process; *Python*: `SplitStreamDecoder` against "
         f"`DracoPy.decode`. Draco: {DRACO_BITS}-bit positions, compression level "
         f"{DRACO_LEVEL}. Ratios: progressive / Draco (below 1: faster or smaller). Per "
         "split and per vertex: the decode's time over the splits it applies, and Draco's "
@@ -213,9 +225,12 @@ def write_report(path: Path, record: dict[str, Any]) -> None:
                 "V",
                 "F",
                 "refine.js ms",
+                "in wasm ms",
                 "Draco wasm ms",
-                "node ratio",
+                "refine.js ratio",
+                "in wasm ratio",
                 "refine.js µs / split",
+                "in wasm µs / split",
                 "Draco wasm µs / vertex",
                 "Python ms",
                 "DracoPy ms",
@@ -225,12 +240,15 @@ def write_report(path: Path, record: dict[str, Any]) -> None:
                 "bytes ratio",
             ],
             rows,
-            [False] + [True] * 13,
+            [False] + [True] * 16,
         ),  # fmt: skip
         "",
         "## Targets (issue #32)",
         "",
-        f"- decoding <= {TARGET_TIME_FACTOR}x Draco's wasm decoder in node: "
+        f"- decoding <= {TARGET_TIME_FACTOR}x Draco's wasm decoder in node, in wasm (the "
+        "viewer's): "
+        + _verdict([row["wasm_ratio"] for row in record["meshes"]], TARGET_TIME_FACTOR)
+        + "; in JavaScript: "
         + _verdict([row["node_ratio"] for row in record["meshes"]], TARGET_TIME_FACTOR)
         + ".",
         f"- base + stream <= {TARGET_BYTES_FACTOR}x Draco 16-bit level 7: "

@@ -83,7 +83,7 @@ def _write_split_arrays(pm: Any, case: Path) -> None:
 
 
 def _build_floor_wasm(folder: Path) -> Path | None:
-    """split_floor.c built for WebAssembly with the bench extra's ziglang; None without
+    """split_floor.c built for WebAssembly with the dev extra's ziglang; None without
     ziglang (the report says so)."""
     if importlib.util.find_spec("ziglang") is None:
         return None
@@ -151,7 +151,7 @@ def write_report(path: Path, record: dict[str, Any]) -> None:
         "WebAssembly by ziglang's clang, its records copied out of its memory as Draco's "
         "are; "
         if record.get("wasm_floor")
-        else "(no *wasm floor*: ziglang, in the bench extra, was not installed); "
+        else "(no *wasm floor*: ziglang, in the dev extra, was not installed); "
     )
     lines = [
         "# The floor under a split-by-split decoder, against refine.js and Draco",

@@ -9,8 +9,9 @@ from __future__ import annotations
 
 __all__ = ["VIEWER_FILES", "VIEWER_PACKAGES"]
 
-# client/web's own files (globs relative to client/web).
-VIEWER_FILES = ("index.html", "viewer.css", "js/*.js")
+# client/web's own files (globs relative to client/web); js/refine.wasm is built from
+# wasm/refine.c (build_wasm.py).
+VIEWER_FILES = ("index.html", "viewer.css", "js/*.js", "js/*.wasm")
 
 # What the viewer imports from node_modules (index.html's import map, refine.js's
 # relative msgpack import), and the licences: a file, or a folder taken whole.

@@ -4,21 +4,26 @@ import { readFileSync } from "node:fs";
 import { pathToFileURL } from "node:url";
 
 /** A function turning the case's base mesh plus its whole split stream into the full
- * level (the buffers a renderer reads); it returns { ms, vertices, faces }. */
-export async function loadRefineCase(web, dir) {
+ * level (the buffers a renderer reads); it returns { ms, vertices, faces, decoder }.
+ * `wasm`: the frames decoded by the WebAssembly split decoder (js/refine.wasm), as the
+ * viewer's worker decodes a mesh without wedges. */
+export async function loadRefineCase(web, dir, { wasm = false } = {}) {
   const { FrameCutter, ProgressiveLevels, decodeBaseMesh, decodeFrame } = await import(
     pathToFileURL(`${web}/js/refine.js`).href
   );
   const plan = JSON.parse(readFileSync(`${dir}/plan.json`, "utf8"));
   const baseBytes = readFileSync(`${dir}/base.msgpack`);
   const stream = readFileSync(`${dir}/stream.qsplits`);
+  const module = wasm ? new WebAssembly.Module(readFileSync(`${web}/js/refine.wasm`)) : null;
   return function decodeProgressive() {
     const start = performance.now();
-    const levels = new ProgressiveLevels(decodeBaseMesh(baseBytes), plan.vertices, plan.faces);
+    const base = decodeBaseMesh(baseBytes);
+    const levels = new ProgressiveLevels(base, plan.vertices, plan.faces, { wasm: module });
     const cutter = new FrameCutter();
     for (const payload of cutter.push(stream)) levels.addFrame(decodeFrame(payload));
     cutter.finish();
     levels.setLevel(plan.vertices);
-    return { ms: performance.now() - start, vertices: levels.level, faces: levels.nFaces };
+    const ms = performance.now() - start;
+    return { ms, vertices: levels.level, faces: levels.nFaces, decoder: levels.decoder };
   };
 }

@@ -1,6 +1,6 @@
 // The floor of split_floor.mjs (its decodeFloor, the same work line by line) in C, for
 // WebAssembly: bench.split_floor builds it with `python -m ziglang cc --target=
-// wasm32-freestanding` when the bench extra's ziglang is there. The caller places every
+// wasm32-freestanding` when the dev extra's ziglang is there. The caller places every
 // array in the module's imported memory and passes their offsets; faces is 0 for the
 // floor without a face index buffer. Returns the coded bytes read.
 #include <stdint.h>

@@ -58,6 +58,7 @@ from tests.wedge_meshes import seamed_mesh, wedge_arrays, with_wedge_arrays
 from .conftest import REPO, shared_mesh
 
 WEB = REPO / "client" / "web"
+WASM = WEB / "js" / "refine.wasm"  # built by make install (client/build_wasm.py)
 # Without the background-networking flags Chromium dials out at start, which a closed
 # network refuses; a fresh profile keeps runs independent.
 CHROMIUM_FLAGS = (
@@ -83,6 +84,13 @@ def find_chromium() -> str | None:
 def require_web_packages() -> None:
     if not (WEB / "node_modules" / "three" / "build" / "three.module.js").is_file():
         pytest.fail("client/web/node_modules is missing: run `make install` (npm ci in client/web)")
+
+
+def require_wasm() -> Path:
+    """The viewer's WebAssembly split decoder, which `make install` builds."""
+    if not WASM.is_file():
+        pytest.fail(f"{WASM} is missing: run `make install` (python client/build_wasm.py)")
+    return WASM
 
 
 @contextmanager
@@ -157,33 +165,38 @@ def served_wedges_digest(http: httpx.Client, url: str, n: int) -> str:
 # -- refine.js under node -----------------------------------------------------------------
 
 # Feeds the stream to refine.js in uneven chunks, then visits the levels asked for, in
-# that order, printing each level's digest (node:crypto, same bytes as the page's).
+# that order, printing each level's digest (node:crypto, same bytes as the page's). With
+# the compiled split decoder's path (refine.wasm) it does it all twice, the frames decoded
+# in JavaScript and in WebAssembly, and prints both.
 _NODE_DRIVER = """
 import { readFileSync } from "node:fs";
 import { createHash } from "node:crypto";
 import { pathToFileURL } from "node:url";
-const [refinePath, dir] = process.argv.slice(2);
+const [refinePath, dir, wasmPath] = process.argv.slice(2);
 const { FrameCutter, ProgressiveLevels, decodeBaseMesh, decodeFrame } =
   await import(pathToFileURL(refinePath).href);
 const plan = JSON.parse(readFileSync(`${dir}/plan.json`, "utf8"));
-const base = decodeBaseMesh(readFileSync(`${dir}/base.msgpack`));
-const levels = new ProgressiveLevels(base, plan.n_full, plan.f_full);
-// What the page holds: the splits as records from a decoder elsewhere (its worker).
-const mirror = new ProgressiveLevels(base, plan.n_full, plan.f_full, { decoder: false });
 const stream = readFileSync(`${dir}/splits.bin`);
-const cutter = new FrameCutter();
-try {
-  for (let at = 0, size = 1; at < stream.length; at += size, size = 2 * size + 1) {
-    for (const payload of cutter.push(stream.subarray(at, at + size))) {
-      const before = levels.received;
-      levels.addFrame(decodeFrame(payload));
-      if (levels.received > before) mirror.addRecord(levels.recordOf(before, levels.received));
+function decodeAll(wasm) {
+  const base = decodeBaseMesh(readFileSync(`${dir}/base.msgpack`));
+  const levels = new ProgressiveLevels(base, plan.n_full, plan.f_full, { wasm });
+  // What the page holds: the splits as records from a decoder elsewhere (its worker).
+  const mirror = new ProgressiveLevels(base, plan.n_full, plan.f_full, { decoder: false });
+  const cutter = new FrameCutter();
+  try {
+    for (let at = 0, size = 1; at < stream.length; at += size, size = 2 * size + 1) {
+      for (const payload of cutter.push(stream.subarray(at, at + size))) {
+        const before = levels.received;
+        levels.addFrame(decodeFrame(payload));
+        if (levels.received > before) mirror.addRecord(levels.recordOf(before, levels.received));
+      }
     }
+    cutter.finish();
+  } catch (error) {
+    const error_ = `${error.name}: ${error.message}`;
+    return { error: error_, held: levels.received, decoder: levels.decoder };
   }
-  cutter.finish();
-} catch (error) {
-  console.log(JSON.stringify({ error: `${error.name}: ${error.message}`, held: levels.received }));
-  process.exit(0);
+  return { levels, mirror };
 }
 const digest = (...arrays) => {
   const hash = createHash("sha256");
@@ -212,12 +225,18 @@ function visit(held, n) {
   out.wrongRenderCorners = wrong;
   return out;
 }
-const out = {};
-for (const n of plan.visit) {
-  out[n] = visit(levels, n);
-  out[n].mirror = visit(mirror, n);
+function visitAll(decoded) {
+  if (decoded.error) return decoded;
+  const out = {};
+  for (const n of plan.visit) {
+    out[n] = visit(decoded.levels, n);
+    out[n].mirror = visit(decoded.mirror, n);
+  }
+  return { decoder: decoded.levels.decoder, levels: out };
 }
-console.log(JSON.stringify(out));
+const answers = { js: visitAll(decodeAll(null)) };
+if (wasmPath) answers.wasm = visitAll(decodeAll(new WebAssembly.Module(readFileSync(wasmPath))));
+console.log(JSON.stringify(answers));
 """
 
 
@@ -231,7 +250,9 @@ def run_refine_js(
     """Levels visited by refine.js (level -> level, faces, digest), after it read
     `stream` (default: pm's whole split stream, two splits a frame) from lod(`start`)
     (default: the base); or {"error": ..., "held": vertex count received} if it refused
-    the stream."""
+    the stream. The frames are decoded twice, by refine.js and by the WebAssembly split
+    decoder (refine.wasm; refine.js alone where the mesh has wedges), which must agree
+    on every level and refusal."""
     node = shutil.which("node")
     if node is None:
         pytest.fail("node is missing: it is needed for the viewer's packages (npm ci)")
@@ -247,17 +268,23 @@ def run_refine_js(
     driver = tmp_path / "driver.mjs"
     driver.write_text(_NODE_DRIVER)
     done = subprocess.run(
-        [node, str(driver), str(WEB / "js" / "refine.js"), str(tmp_path)],
+        [node, str(driver), str(WEB / "js" / "refine.js"), str(tmp_path), str(require_wasm())],
         capture_output=True,
         text=True,
         timeout=120,
     )
     assert done.returncode == 0, done.stderr
-    answer = json.loads(done.stdout)
-    if "error" in answer:
-        return answer
+    answers = json.loads(done.stdout)
+    in_js, in_wasm = answers["js"], answers["wasm"]
+    assert in_js["decoder"] == "js"
+    expected = "js" if quantised_wedges(pm, start) is not None else "wasm"
+    assert in_wasm.pop("decoder") == expected
+    in_js.pop("decoder")
+    assert in_wasm == in_js, "the WebAssembly decoder and refine.js disagree"
+    if "error" in in_js:
+        return in_js
     levels = {}
-    for n, level in answer.items():
+    for n, level in in_js["levels"].items():
         # The page's levels (records of splits decoded in its worker) are the decoder's.
         assert level.pop("mirror") == level, f"level {n}: the records do not rebuild it"
         levels[int(n)] = level
@@ -595,6 +622,7 @@ def test_viewer_refines_to_the_full_mesh_and_slides_both_ways(server, tmp_path):
         # The stream went through the real network path in frames, after the base mesh.
         assert state["baseBytes"] > 0 and state["splitBytes"] > 0
         assert 0 < state["baseShownMs"] <= state["fullShownMs"]
+        assert state["decoder"] == "wasm"  # its worker decoded the frames in WebAssembly
 
         # The figures are read right after each key: the level moves from data held.
         slider = page.locator("#lod-slider")

@@ -36,6 +36,7 @@ def test_the_wheel_serves_the_viewer_without_npm(tmp_path):
     for package in VIEWER_PACKAGES:
         assert any(name.startswith(f"client/web/node_modules/{package}") for name in names)
     assert not any("three/src/" in name for name in names)  # what the viewer loads, not all
+    assert "client/web/js/refine.wasm" in names  # the WebAssembly split decoder, built
 
     # A fresh environment; its dependencies (not qem-lod, whose editable install is a
     # .pth this path does not run) from this one's site-packages.

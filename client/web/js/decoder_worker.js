@@ -5,9 +5,11 @@
 // the range decoding and the connectivity walks, seconds for a big mesh, never block
 // rendering or input.
 //
-// Messages in:  {type: "start", base: Uint8Array (the base mesh's msgpack), nFull, fFull}
+// Messages in:  {type: "start", base: Uint8Array (the base mesh's msgpack), nFull, fFull,
+//                wasm: the compiled split decoder (wasm_splits.js) or null}
 //               {type: "frame", frame: decodeFrame's result}
-// Messages out: {type: "record", record: recordOf(...) or null (a frame held already)}
+// Messages out: {type: "started", decoder: "wasm" or "js" (ProgressiveLevels.decoder)}
+//               {type: "record", record: recordOf(...) or null (a frame held already)}
 //               {type: "error", name, message}: the first refused frame; later frames
 //               are refused too (the decoding state is gone).
 
@@ -27,7 +29,9 @@ function transfers(record) {
 self.onmessage = ({ data }) => {
   try {
     if (data.type === "start") {
-      levels = new ProgressiveLevels(decodeBaseMesh(data.base), data.nFull, data.fFull);
+      const base = decodeBaseMesh(data.base);
+      levels = new ProgressiveLevels(base, data.nFull, data.fFull, { wasm: data.wasm ?? null });
+      self.postMessage({ type: "started", decoder: levels.decoder });
       return;
     }
     if (data.type !== "frame") throw new Error(`decoder worker: unknown message '${data.type}'`);

@@ -9,6 +9,7 @@
 
 import { getMesh, listMeshes, lodError, lodUrl, splitsUrl, uploadMesh } from "./api.js";
 import { ProgressiveLevels, decodeBaseMesh, problemError, streamSplits } from "./refine.js";
+import { loadSplitModule } from "./wasm_splits.js";
 import { WorkerDecoder } from "./worker_decoder.js";
 import { MeshScene } from "./scene.js";
 import { openExport, streamExport } from "./static_source.js";
@@ -25,6 +26,10 @@ const ERROR_DELAY_MS = 300; // ask for a level's error once the slider rests thi
 // and 1.22 s so held (1.19 s with no HUD at all while streaming). The figures are exact
 // again when the stream ends.
 const STREAM_STATS_MS = 250;
+
+// The WebAssembly split decoder, compiled once while the page starts (null without it:
+// the worker then decodes in JavaScript).
+const splitModule = loadSplitModule();
 
 const count = (n) => Number(n).toLocaleString("en-US");
 const sleep = (ms, signal) =>
@@ -329,6 +334,7 @@ async function load(source) {
     current.streaming = true;
     const streamStarted = performance.now();
     const decoding = new WorkerDecoder(levels, baseData, {
+      wasm: await splitModule,
       onRecord: () => {
         if (current !== view) return;
         if (levels.level < current.want) levels.setLevel(current.want);
@@ -544,6 +550,7 @@ window.qemViewer = {
       streamedMs: view?.streamedMs ?? null,
       fullShownMs: view?.fullShownMs ?? null,
       fullPolishedMs: view?.fullPolishedMs ?? null,
+      decoder: view?.decoding?.decoder ?? null, // "wasm" or "js": which decodes the frames
       attributes: levels?.wedges?.grid.names ?? [], // appearance carried by the wedges
       renderVertices: levels?.wedges?.render.count ?? null,
       textureShown: scene?.textureShown ?? false,

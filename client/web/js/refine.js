@@ -27,6 +27,7 @@
 import { decode } from "../node_modules/@msgpack/msgpack/dist.esm/index.mjs";
 import { bitLength, INTEGER_SLOTS, newProbs, RangeDecoder, UNIFORM_SLOTS } from "./range_coder.js";
 import { binArray, fail, FrameCutter, gridClose, INDEX_TYPES, WireFormatError } from "./wire.js";
+import { WasmSplits } from "./wasm_splits.js";
 import { decodeBaseWedges, decodeWedgeFields, WedgeLevels } from "./wedges.js";
 
 export { FrameCutter, WireFormatError };
@@ -757,8 +758,10 @@ class SplitState {
 export class ProgressiveLevels {
   /** `decoder: false` holds the levels only: frames are decoded elsewhere (a Web Worker,
    * decoder_worker.js) and their splits arrive as records (`addRecord`), so the big
-   * decoding state is not kept twice. */
-  constructor(base, nFull, fFull, { decoder = true } = {}) {
+   * decoding state is not kept twice. `wasm`, the compiled split decoder
+   * (wasm_splits.js's loadSplitModule), decodes the frames of a mesh without wedge keys
+   * in WebAssembly, with the same results. */
+  constructor(base, nFull, fFull, { decoder = true, wasm = null } = {}) {
     if (!(nFull >= base.nVertices && fFull >= base.nFaces)) {
       fail(`the full mesh (${nFull} vertices, ${fFull} faces) is smaller than the base mesh`);
     }
@@ -781,7 +784,9 @@ export class ProgressiveLevels {
     this.relabelFaces = new Uint32Array(Math.max(16, 2 * nSplits)); // grows if needed
     this.received = this.nBase; // vertex count up to which splits are held
     // The received level, for decoding.
-    this.state = decoder ? new SplitState(base, nFull, fFull) : null;
+    const inWasm = decoder && wasm !== null && !base.wedges;
+    this.state = !decoder ? null : inWasm ? new WasmSplits(wasm, base, nFull, fFull) : new SplitState(base, nFull, fFull);
+    this.decoder = !decoder ? null : inWasm ? "wasm" : "js"; // which one decodes the frames
     this.contexts = null; // the range coder's, as the stream's last frame left them
     this.broken = null; // why a frame was refused half-way
     this.level = this.nBase; // vertex count the buffers hold now
@@ -830,7 +835,8 @@ export class ProgressiveLevels {
     if (!frame.continues) this.contexts = newProbs(CONTEXT_SLOTS); // a stream's first frame
     try {
       this.wedges?.beginFrame(frame.wedges, frame.continues);
-      this.decodeSplits(frame);
+      if (this.state instanceof WasmSplits) this.state.decodeSplits(frame, this);
+      else this.decodeSplits(frame);
       this.wedges?.endFrame();
     } catch (error) {
       this.broken = error.message;

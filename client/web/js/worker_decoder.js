@@ -1,7 +1,7 @@
 // The page's side of decoder_worker.js: frames go to the worker, records of their splits
 // come back and are added to the page's levels (a ProgressiveLevels without a decoder).
 //
-//   const decoding = new WorkerDecoder(levels, baseBytes, { onRecord });
+//   const decoding = new WorkerDecoder(levels, baseBytes, { onRecord, wasm });
 //   decoding.addFrame(decodeFrame(payload));   // checked here (CRC-32, header), decoded there
 //   await decoding.finish();                   // every frame answered; rejects on a refusal
 //
@@ -11,9 +11,12 @@
 import { WireFormatError } from "./wire.js";
 
 export class WorkerDecoder {
-  constructor(levels, baseBytes, { onRecord } = {}) {
+  /** `wasm`: the compiled split decoder (wasm_splits.js's loadSplitModule), or null for
+   * refine.js's. */
+  constructor(levels, baseBytes, { onRecord, wasm = null } = {}) {
     this.levels = levels;
     this.onRecord = onRecord;
+    this.decoder = null; // "wasm" or "js" once the worker has started
     this.pending = 0; // frames sent and not answered
     this.error = null;
     this.waiting = []; // finish() callers: [resolve, reject]
@@ -23,7 +26,7 @@ export class WorkerDecoder {
       event.preventDefault?.();
       this.fault(new Error(`the decoder's worker failed: ${event.message ?? "it could not start"}`));
     };
-    this.worker.postMessage({ type: "start", base: baseBytes, nFull: levels.nFull, fFull: levels.fFull });
+    this.worker.postMessage({ type: "start", base: baseBytes, nFull: levels.nFull, fFull: levels.fFull, wasm });
   }
 
   /** Send a frame (decodeFrame's result) to be decoded; throws the first refusal. */
@@ -39,6 +42,10 @@ export class WorkerDecoder {
 
   answer(data) {
     if (this.error) return;
+    if (data.type === "started") {
+      this.decoder = data.decoder;
+      return;
+    }
     if (data.type === "error") {
       const error = data.name === "WireFormatError" ? new WireFormatError(data.message) : new Error(data.message);
       this.fault(error);

@@ -1,0 +1,109 @@
+// The split decoder compiled to WebAssembly (client/web/wasm/refine.c, built into
+// refine.wasm beside this file by client/build_wasm.py): the same integers as refine.js's
+// SplitState and decodeSplits, in about 1.7x less time. ProgressiveLevels uses it when it is
+// given the compiled module and the mesh has no wedge keys (their decoding reads
+// SplitState's corner sets, so it stays in refine.js).
+//
+//   const module = await loadSplitModule();          // null where it cannot be had
+//   new ProgressiveLevels(base, nFull, fFull, { wasm: module });
+
+import { fail } from "./wire.js";
+
+const FRAME_WORK_LIMIT = 1 << 21; // as refine.js: named in one of the messages below
+
+/** The compiled decoder, or null (no WebAssembly, or refine.wasm not served): the
+ * levels then decode in JavaScript. `url` defaults to refine.wasm beside this module. */
+export async function loadSplitModule(url = new URL("./refine.wasm", import.meta.url)) {
+  if (typeof WebAssembly === "undefined") return null;
+  try {
+    const response = await fetch(url);
+    if (!response.ok) return null;
+    return await WebAssembly.compile(await response.arrayBuffer());
+  } catch {
+    return null;
+  }
+}
+
+const OUT_OF_MEMORY = 11;
+// refine.c's error codes, as refine.js words the same refusals.
+const MESSAGES = [
+  null,
+  () => "split frame: the coded splits end early (truncated or corrupt data)",
+  (t) => `split ${t}: names a vertex that does not exist yet`,
+  () => `split frame: the splits walk more than ${FRAME_WORK_LIMIT} corners of their split vertices`,
+  () => "split frame: the splits' face counts do not add up to n_new_faces",
+  (t) => `split ${t}: a new face uses a vertex that does not exist`,
+  (t, value) => `split frame: bad face code ${value}`,
+  (t) => `split ${t}: a third corner is not a neighbour of the split vertex`,
+  (t) => `split ${t}: a relabelled face has no corner s`,
+  () => "split frame: a position leaves the grid ([0, 2^bits - 1])",
+  () => "split frame: the coded splits hold bytes past the last split",
+  () => "split frame: the decoder ran out of memory",
+  () => "base mesh: a face names a vertex that does not exist",
+];
+
+/**
+ * The decoding state of ProgressiveLevels in WebAssembly memory: the received level's
+ * faces and each vertex's block of corners and grid position, laid out as SplitState's
+ * (`faces`, `fan`), so ProgressiveLevels reads the level it holds from them the same way.
+ */
+export class WasmSplits {
+  constructor(module, base, nFull, fFull) {
+    this.exports = new WebAssembly.Instance(module, {}).exports;
+    this.nBase = base.nVertices;
+    this.nFull = nFull;
+    this.fFull = fFull;
+    const w = this.exports;
+    if (!w.qem_init(base.nVertices, nFull, fFull, base.nFaces, base.bits)) {
+      fail("the split decoder has no room for this mesh (WebAssembly memory)");
+    }
+    this.ints(w.qem_base_positions(), 3 * base.nVertices).set(base.positions);
+    this.ints(w.qem_base_faces(), 3 * base.nFaces).set(base.indices);
+    this.check(w.qem_link_base());
+  }
+
+  /** An Int32Array over the module's memory (made anew: memory growth detaches views). */
+  ints(at, length) {
+    return new Int32Array(this.exports.memory.buffer, at, length);
+  }
+
+  check(code) {
+    if (code === 0) return;
+    const w = this.exports;
+    fail(MESSAGES[code]?.(w.qem_error_split(), w.qem_error_value()) ?? `split decoder error ${code}`);
+  }
+
+  /** The received level's faces, as SplitState.faces. */
+  get faces() {
+    return this.ints(this.exports.qem_faces(), 3 * this.fFull);
+  }
+
+  /** Each vertex's block (count, spill offset, grid position, corners), as SplitState.fan. */
+  get fan() {
+    return this.ints(this.exports.qem_fan(), this.exports.qem_fan_ints());
+  }
+
+  /** Decode `frame` (decodeFrame's result, checked by ProgressiveLevels.addFrame) and
+   * store its splits in `levels` as ProgressiveLevels.decodeSplits does. */
+  decodeSplits(frame, levels) {
+    const w = this.exports;
+    const { nFrom, nTo, coded } = frame;
+    const at = w.qem_coded(coded.length);
+    if (at === 0 && coded.length > 0) this.check(OUT_OF_MEMORY);
+    new Uint8Array(w.memory.buffer, at, coded.length).set(coded);
+    this.check(w.qem_decode(at, coded.length, nFrom, nTo - nFrom, frame.facesFrom, frame.nNewFaces, frame.continues ? 0 : 1));
+    const a = nFrom - this.nBase;
+    const b = nTo - this.nBase;
+    const levelFaces = this.ints(w.qem_level_faces(), b + 1);
+    const relabelOffsets = this.ints(w.qem_relabel_offsets(), b + 1);
+    levels.splitVertex.set(this.ints(w.qem_split_vertex() + 4 * a, b - a), a);
+    levels.deltas.set(this.ints(w.qem_deltas() + 24 * a, 6 * (b - a)), 6 * a);
+    levels.levelFaces.set(levelFaces.subarray(a + 1, b + 1), a + 1);
+    levels.relabelOffsets.set(relabelOffsets.subarray(a + 1, b + 1), a + 1);
+    levels.reserveRelabels(relabelOffsets[b]);
+    const relabels = this.ints(w.qem_relabel_faces() + 4 * relabelOffsets[a], relabelOffsets[b] - relabelOffsets[a]);
+    levels.relabelFaces.set(relabels, relabelOffsets[a]);
+    const first = levelFaces[a];
+    levels.indices.set(this.ints(w.qem_out_faces() + 12 * first, 3 * (levelFaces[b] - first)), 3 * first);
+  }
+}

@@ -1,0 +1,163 @@
+"""The WebAssembly split decoder (client/web/wasm/refine.c) against refine.js on damaged
+frames: thousands of frames whose coded splits or counts were changed at random, then
+sealed again with their right CRC-32 (so they reach the decoders, not the checksum), go
+through both in one node process. On every one they must agree: the same refusal with
+the same message and the same levels kept, or the same levels decoded, bit for bit.
+Nothing may hang or crash either (the C decoder checks every index a frame gives).
+
+The levels on undamaged streams, and the hand-made hostile frames, are compared for both
+decoders wherever refine.js runs under node (test_viewer.run_refine_js).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+
+import msgpack
+import numpy as np
+import pytest
+
+from qem_core.levels import encode_level
+from qem_core.stream import encode_split_frames
+from tests.tiny_meshes import icosphere, perforated_icosphere
+
+from .test_viewer import WEB, require_wasm, require_web_packages, sealed
+
+# Decodes every stream of the case with refine.js and with refine.wasm; one line each:
+# both outcomes (the refusal and the vertices held, or a digest of the full level).
+_DRIVER = """
+import { readFileSync } from "node:fs";
+import { createHash } from "node:crypto";
+import { pathToFileURL } from "node:url";
+const [refinePath, wasmPath, dir] = process.argv.slice(2);
+const { FrameCutter, ProgressiveLevels, decodeBaseMesh, decodeFrame } =
+  await import(pathToFileURL(refinePath).href);
+const wasm = new WebAssembly.Module(readFileSync(wasmPath));
+const plan = JSON.parse(readFileSync(`${dir}/plan.json`, "utf8"));
+const baseBytes = readFileSync(`${dir}/base.msgpack`);
+function outcome(stream, module) {
+  const base = decodeBaseMesh(baseBytes);
+  const levels = new ProgressiveLevels(base, plan.n_full, plan.f_full, { wasm: module });
+  try {
+    const cutter = new FrameCutter();
+    for (const payload of cutter.push(stream)) levels.addFrame(decodeFrame(payload));
+    cutter.finish();
+  } catch (error) {
+    const refusal = `${error.name}: ${error.message}`;
+    return { decoder: levels.decoder, error: refusal, held: levels.received };
+  }
+  levels.setLevel(levels.received);
+  const hash = createHash("sha256");
+  for (const a of [levels.positions, levels.indices]) hash.update(new Uint8Array(a.buffer));
+  return { decoder: levels.decoder, held: levels.received, digest: hash.digest("hex") };
+}
+for (let i = 0; i < plan.streams; i++) {
+  const stream = readFileSync(`${dir}/stream-${i}.bin`);
+  console.log(JSON.stringify({ js: outcome(stream, null), wasm: outcome(stream, wasm) }));
+}
+"""
+
+STREAMS = 400  # damaged streams a mesh
+
+
+def _damaged(frame: bytes, rng: np.random.Generator) -> bytes:
+    """The frame with one random change to its coded splits or its counts, sealed again."""
+    body = msgpack.unpackb(frame[4:-4])
+    coded = bytearray(body["splits"])
+    kind = rng.integers(6)
+    if kind <= 1 and coded:  # bits flipped
+        for _ in range(1 + int(rng.integers(3))):
+            coded[int(rng.integers(len(coded)))] ^= 1 << int(rng.integers(8))
+    elif kind == 2 and coded:  # cut short
+        del coded[int(rng.integers(len(coded))) :]
+    elif kind == 3:  # bytes added
+        coded += bytes(rng.integers(0, 256, int(rng.integers(1, 9)), dtype=np.uint8))
+    elif kind == 4 and coded:  # a stretch of random bytes
+        at = int(rng.integers(len(coded)))
+        for j in range(at, min(len(coded), at + 8)):
+            coded[j] = int(rng.integers(256))
+    else:  # a count off by a little
+        key = ("n_new_faces", "n_to")[int(rng.integers(2))]
+        body[key] = max(0, body[key] + int(rng.choice([-2, -1, 1, 2])))
+    body["splits"] = bytes(coded)
+    return sealed(msgpack.packb(body))
+
+
+MESHES = {
+    "closed": lambda: icosphere(3, jitter=0.05),
+    "holes": lambda: perforated_icosphere(3, jitter=0.05, holes=6),  # open fans, pinches
+}
+
+
+@pytest.mark.parametrize("make", MESHES.values(), ids=MESHES.keys())
+def test_wasm_decoder_agrees_with_refine_js_on_damaged_frames(make, tmp_path):
+    node = shutil.which("node")
+    if node is None:
+        pytest.fail("node is missing: it is needed for the viewer's packages (npm ci)")
+    require_web_packages()
+    import qem_core
+
+    vertices, faces = make()
+    pm = qem_core.build(vertices, faces)
+    frames = list(encode_split_frames(pm, pm.n_base, pm.n_full, splits_per_frame=16))
+    rng = np.random.default_rng(20261207)
+    for i in range(STREAMS):
+        at = int(rng.integers(len(frames)))
+        stream = b"".join([*frames[:at], _damaged(frames[at], rng), *frames[at + 1 :]])
+        (tmp_path / f"stream-{i}.bin").write_bytes(stream)
+    (tmp_path / "base.msgpack").write_bytes(encode_level(pm, pm.n_base, "msgpack").content)
+    plan = {"n_full": pm.n_full, "f_full": pm.n_faces_full, "streams": STREAMS}
+    (tmp_path / "plan.json").write_text(json.dumps(plan))
+    driver = tmp_path / "driver.mjs"
+    driver.write_text(_DRIVER)
+    done = subprocess.run(
+        [node, str(driver), str(WEB / "js" / "refine.js"), str(require_wasm()), str(tmp_path)],
+        capture_output=True, text=True, timeout=300, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    outcomes = [json.loads(line) for line in done.stdout.splitlines()]
+    assert len(outcomes) == STREAMS
+    refused = 0
+    for i, both in enumerate(outcomes):
+        assert both["js"]["decoder"] == "js" and both["wasm"]["decoder"] == "wasm"
+        del both["js"]["decoder"], both["wasm"]["decoder"]
+        assert both["wasm"] == both["js"], f"stream {i}"
+        refused += "error" in both["js"]
+    # the damage reaches the decoders: most streams are refused, not all
+    assert STREAMS // 2 < refused < STREAMS, refused
+
+
+def test_wasm_decoder_refuses_a_base_mesh_face_past_its_vertices(tmp_path):
+    """The base mesh's faces are checked in C too (the page's decodeBaseMesh checks them
+    first; the C decoder does not rely on it)."""
+    node = shutil.which("node")
+    if node is None:
+        pytest.fail("node is missing: it is needed for the viewer's packages (npm ci)")
+    require_web_packages()
+    script = tmp_path / "base.mjs"
+    script.write_text(
+        """
+import { readFileSync } from "node:fs";
+import { pathToFileURL } from "node:url";
+const [splitsPath, wasmPath] = process.argv.slice(2);
+const { WasmSplits } = await import(pathToFileURL(splitsPath).href);
+const module = new WebAssembly.Module(readFileSync(wasmPath));
+const base = { nVertices: 3, nFaces: 1, bits: 16, positions: new Uint16Array(9),
+               indices: new Uint32Array([0, 1, 3]) };
+try {
+  new WasmSplits(module, base, 5, 4);
+  console.log("accepted");
+} catch (error) {
+  console.log(`${error.name}: ${error.message}`);
+}
+"""
+    )
+    done = subprocess.run(
+        [node, str(script), str(WEB / "js" / "wasm_splits.js"), str(require_wasm())],
+        capture_output=True, text=True, timeout=60, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    refusal = "WireFormatError: base mesh: a face names a vertex that does not exist"
+    assert done.stdout.strip() == refusal

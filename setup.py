@@ -41,25 +41,38 @@ def _package_data() -> list[str]:
 
 class BuildWithViewer(build_py):
     def run(self) -> None:
-        if not getattr(self, "editable_mode", False) and not _wasm["TARGET"].exists():
-            _wasm["build"]()
-            self.package_data["client"] = _package_data()
-            self.data_files = self._get_data_files()
-        if not getattr(self, "editable_mode", False) and _missing_packages():
-            npm = shutil.which("npm")
-            if npm is None:
-                raise SystemExit(
-                    "building the wheel needs the web viewer's npm packages "
-                    f"({', '.join(_missing_packages())}): install Node.js >= 18 with npm, or "
-                    "run `npm ci` in client/web on a machine that has it, then build again"
-                )
-            subprocess.run([npm, "ci", "--no-audit", "--no-fund"], cwd=WEB, check=True)
-            if _missing_packages():
-                raise SystemExit(f"npm ci left out {', '.join(_missing_packages())}")
-            # The globs were expanded before npm ran: expand them again.
-            self.package_data["client"] = _package_data()
-            self.data_files = self._get_data_files()
+        if not getattr(self, "editable_mode", False):
+            built = _build_missing_wasm()
+            if _install_missing_packages() or built:
+                # The globs were expanded before these files were made: expand them again.
+                self.package_data["client"] = _package_data()
+                self.data_files = self._get_data_files()
         super().run()
+
+
+def _build_missing_wasm() -> bool:
+    """Compile client/web/js/refine.wasm when it is missing; whether it was."""
+    if _wasm["TARGET"].exists():
+        return False
+    _wasm["build"]()
+    return True
+
+
+def _install_missing_packages() -> bool:
+    """`npm ci` in client/web when some viewer package is missing; whether it ran."""
+    if not _missing_packages():
+        return False
+    npm = shutil.which("npm")
+    if npm is None:
+        raise SystemExit(
+            "building the wheel needs the web viewer's npm packages "
+            f"({', '.join(_missing_packages())}): install Node.js >= 18 with npm, or "
+            "run `npm ci` in client/web on a machine that has it, then build again"
+        )
+    subprocess.run([npm, "ci", "--no-audit", "--no-fund"], cwd=WEB, check=True)
+    if _missing_packages():
+        raise SystemExit(f"npm ci left out {', '.join(_missing_packages())}")
+    return True
 
 
 setup(

@@ -9,7 +9,6 @@ residual no 16-bit grid holds; and a base mesh whose wedge values leave their gr
 from __future__ import annotations
 
 import json
-import shutil
 import struct
 import subprocess
 import zlib
@@ -34,7 +33,7 @@ from tests.unit.test_stream import _disc, off_grid_frame, one_vertex_frame
 from tests.unit.test_stream_wedges import hub_wedge_frame
 from tests.wedge_meshes import seamed_mesh, with_wedge_arrays
 
-from .test_viewer import WEB, pm_digest, require_web_packages, run_refine_js
+from .test_viewer import WEB, pm_digest, require_node, run_refine_js
 
 
 @pytest.fixture(scope="module")
@@ -166,10 +165,7 @@ try {
 
 def _base_mesh_errors(tmp_path, blobs: list[bytes]) -> list[str | None]:
     """What the viewer's decodeBaseMesh answers for each msgpack level (None: read)."""
-    node = shutil.which("node")
-    if node is None:
-        pytest.fail("node is missing: it is needed for the viewer's packages (npm ci)")
-    require_web_packages()
+    node = require_node()
     driver = tmp_path / "driver.mjs"
     driver.write_text(_BASE_DRIVER)
     answers = []
@@ -299,10 +295,7 @@ def test_frames_before_a_bad_length_are_cut_in_any_chunking(tmp_path, pm):
     """Regression: in one chunk with a frame length past the limit, the good frames
     before it were lost with the error (one frame a chunk, they were refined): the
     viewer's level depended on how the bytes arrived. iter_frames yields them first too."""
-    node = shutil.which("node")
-    if node is None:
-        pytest.fail("node is missing: it is needed for the viewer's packages (npm ci)")
-    require_web_packages()
+    node = require_node()
     good = list(iter_frames(encode_split_frames(pm, pm.n_base, pm.n_base + 20,
                                                 splits_per_frame=10)))[:2]
     stream = b"".join(_frame(payload) for payload in good) + struct.pack("<I", 1 << 30)

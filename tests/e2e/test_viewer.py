@@ -86,6 +86,15 @@ def require_web_packages() -> None:
         pytest.fail("client/web/node_modules is missing: run `make install` (npm ci in client/web)")
 
 
+def require_node() -> str:
+    """node's path, once node and the viewer's packages are known to be there."""
+    node = shutil.which("node")
+    if node is None:
+        pytest.fail("node is missing: it is needed for the viewer's packages (npm ci)")
+    require_web_packages()
+    return node
+
+
 def require_wasm() -> Path:
     """The viewer's WebAssembly split decoder, which `make install` builds."""
     if not WASM.is_file():
@@ -253,10 +262,7 @@ def run_refine_js(
     the stream. The frames are decoded twice, by refine.js and by the WebAssembly split
     decoder (refine.wasm; refine.js alone where the mesh has wedges), which must agree
     on every level and refusal."""
-    node = shutil.which("node")
-    if node is None:
-        pytest.fail("node is missing: it is needed for the viewer's packages (npm ci)")
-    require_web_packages()
+    node = require_node()
     start = pm.n_base if start is None else start
     base = encode_level(pm, start, "msgpack").content
     (tmp_path / "base.msgpack").write_bytes(base)

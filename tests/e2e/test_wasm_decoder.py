@@ -12,7 +12,6 @@ decoders wherever refine.js runs under node (test_viewer.run_refine_js).
 from __future__ import annotations
 
 import json
-import shutil
 import subprocess
 
 import msgpack
@@ -23,7 +22,7 @@ from qem_core.levels import encode_level
 from qem_core.stream import encode_split_frames
 from tests.tiny_meshes import icosphere, perforated_icosphere
 
-from .test_viewer import WEB, require_wasm, require_web_packages, sealed
+from .test_viewer import WEB, require_node, require_wasm, sealed
 
 # Decodes every stream of the case with refine.js and with refine.wasm; one line each:
 # both outcomes (the refusal and the vertices held, or a digest of the full level).
@@ -93,10 +92,7 @@ MESHES = {
 
 @pytest.mark.parametrize("make", MESHES.values(), ids=MESHES.keys())
 def test_wasm_decoder_agrees_with_refine_js_on_damaged_frames(make, tmp_path):
-    node = shutil.which("node")
-    if node is None:
-        pytest.fail("node is missing: it is needed for the viewer's packages (npm ci)")
-    require_web_packages()
+    node = require_node()
     import qem_core
 
     vertices, faces = make()
@@ -132,10 +128,7 @@ def test_wasm_decoder_agrees_with_refine_js_on_damaged_frames(make, tmp_path):
 def test_wasm_decoder_refuses_a_base_mesh_face_past_its_vertices(tmp_path):
     """The base mesh's faces are checked in C too (the page's decodeBaseMesh checks them
     first; the C decoder does not rely on it)."""
-    node = shutil.which("node")
-    if node is None:
-        pytest.fail("node is missing: it is needed for the viewer's packages (npm ci)")
-    require_web_packages()
+    node = require_node()
     script = tmp_path / "base.mjs"
     script.write_text(
         """

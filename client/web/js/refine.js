@@ -26,7 +26,7 @@
 // (decoder_worker.js), where import maps do not apply.
 import { decode } from "../node_modules/@msgpack/msgpack/dist.esm/index.mjs";
 import { bitLength, INTEGER_SLOTS, newProbs, RangeDecoder, UNIFORM_SLOTS } from "./range_coder.js";
-import { binArray, fail, FrameCutter, gridClose, INDEX_TYPES, WireFormatError } from "./wire.js";
+import { binArray, fail, FrameCutter, gridClose, INDEX_TYPES, SPLITS_REFUSED, WireFormatError } from "./wire.js";
 import { WasmSplits } from "./wasm_splits.js";
 import { decodeBaseWedges, decodeWedgeFields, WedgeLevels } from "./wedges.js";
 
@@ -343,7 +343,7 @@ export function decodeFrame(payload) {
 
 /** A frame whose coded splits ran out before its last split. */
 function failShort() {
-  fail("split frame: the coded splits end early (truncated or corrupt data)");
+  fail(SPLITS_REFUSED.short());
 }
 
 /** Every split's s of a frame, which it codes before the splits' other fields
@@ -356,19 +356,19 @@ function decodeSplitVertices(coder, probs, nFrom, k) {
   for (let i = 0; i < k; i++) {
     if (coder.broken) failShort();
     const t = nFrom + i;
-    if (t < 1) fail(`split ${t}: names a vertex that does not exist yet`);
+    if (t < 1) fail(SPLITS_REFUSED.notYet(t));
     let s;
     if (coder.bit(probs, S_AHEAD_SLOTS + wasAhead)) {
       wasAhead = 1;
       s = previousS + 1 + coder.integer(probs, S_GAP_SLOTS, false);
-      if (s >= t) fail(`split ${t}: names a vertex that does not exist yet`);
+      if (s >= t) fail(SPLITS_REFUSED.notYet(t));
     } else {
       wasAhead = 0;
       const n = previousS + 1;
       const bucket = coder.tree(probs, S_BUCKET_SLOTS, S_BUCKET_BITS);
       const lo = Math.floor((bucket * n + S_BUCKETS - 1) / S_BUCKETS);
       const hi = Math.floor(((bucket + 1) * n + S_BUCKETS - 1) / S_BUCKETS);
-      if (hi <= lo) fail(`split ${t}: names a vertex that does not exist yet`);
+      if (hi <= lo) fail(SPLITS_REFUSED.notYet(t));
       s = lo + coder.uniform(probs, S_SLOTS, hi - lo);
     }
     previousS = s;
@@ -399,7 +399,7 @@ class SplitState {
     this.spillEnd = 1; // offset 0 means "not spilled"
     for (let c = 0; c < 3 * base.nFaces; c++) {
       const v = this.faces[c];
-      if (v >= base.nVertices) fail("base mesh: a face names a vertex that does not exist");
+      if (v >= base.nVertices) fail(SPLITS_REFUSED.baseVertex());
       this.link(v, c);
     }
     this.cs = new Int32Array(16); // corners of s, sorted
@@ -784,9 +784,9 @@ export class ProgressiveLevels {
     this.relabelFaces = new Uint32Array(Math.max(16, 2 * nSplits)); // grows if needed
     this.received = this.nBase; // vertex count up to which splits are held
     // The received level, for decoding.
-    const inWasm = decoder && wasm !== null && !base.wedges;
-    this.state = !decoder ? null : inWasm ? new WasmSplits(wasm, base, nFull, fFull) : new SplitState(base, nFull, fFull);
-    this.decoder = !decoder ? null : inWasm ? "wasm" : "js"; // which one decodes the frames
+    if (!decoder) this.state = null;
+    else if (wasm !== null && !base.wedges) this.state = new WasmSplits(wasm, base, nFull, fFull);
+    else this.state = new SplitState(base, nFull, fFull);
     this.contexts = null; // the range coder's, as the stream's last frame left them
     this.broken = null; // why a frame was refused half-way
     this.level = this.nBase; // vertex count the buffers hold now
@@ -795,6 +795,12 @@ export class ProgressiveLevels {
     this.wedges = base.wedges ? new WedgeLevels(base, this, { decoder }) : null;
     this.texture = base.texture;
     this.materials = base.materials;
+  }
+
+  /** Which decoder decodes the frames: "wasm", "js", or null (levels that take records). */
+  get decoder() {
+    if (this.state === null) return null;
+    return this.state instanceof WasmSplits ? "wasm" : "js";
   }
 
   facesAt(n) {
@@ -904,7 +910,7 @@ export class ProgressiveLevels {
     const out = this.indices;
     const coder = new RangeDecoder(frame.coded);
     const probs = this.contexts;
-    const badThird = (t) => fail(`split ${t}: a third corner is not a neighbour of the split vertex`);
+    const badThird = (t) => fail(SPLITS_REFUSED.third(t));
     let relabel = this.relabelOffsets[first];
     let face = frame.facesFrom;
     const faceEnd = face + frame.nNewFaces;
@@ -924,12 +930,12 @@ export class ProgressiveLevels {
       const { nc, nn } = state;
       cornersWalked += nc;
       if (i > 0 && cornersWalked > FRAME_WORK_LIMIT) {
-        fail(`split frame: the splits walk more than ${FRAME_WORK_LIMIT} corners of their split vertices`);
+        fail(SPLITS_REFUSED.work(t, FRAME_WORK_LIMIT));
       }
       state.keysFor = null; // the fan keys are not this split's yet
       state.ringShape(s, nc, nn, shape);
       const count = coder.integer(probs, COUNT_SLOTS, false);
-      if (count > faceEnd - face) fail("split frame: the splits' face counts do not add up to n_new_faces");
+      if (count > faceEnd - face) fail(SPLITS_REFUSED.counts());
       let xl = -1;
       let xr = -1;
       let firstForward = false;
@@ -943,12 +949,12 @@ export class ProgressiveLevels {
         if (code === EXPLICIT_FACE) {
           for (let c = 0; c < 3; c++) {
             const b = coder.integer(probs, BACK_SLOTS, false);
-            if (b > t) fail(`split ${t}: a new face uses a vertex that does not exist`);
+            if (b > t) fail(SPLITS_REFUSED.noVertex(t));
             sf[f + c] = t - b;
           }
           continue;
         }
-        if (code > EXPLICIT_FACE) fail(`split frame: bad face code ${code}`);
+        if (code > EXPLICIT_FACE) fail(SPLITS_REFUSED.faceCode(t, code));
         const forward = code < 3;
         const wing = xl >= 0 || xr >= 0;
         let x = -1;
@@ -967,7 +973,7 @@ export class ProgressiveLevels {
           // given by the walk
         } else if (coder.bit(probs, ESCAPE_SLOT)) {
           const b = coder.integer(probs, BACK_SLOTS, false);
-          if (b > t) fail(`split ${t}: a new face uses a vertex that does not exist`);
+          if (b > t) fail(SPLITS_REFUSED.noVertex(t));
           x = t - b;
         } else if (nn > 0) {
           const nIndex = Math.min(nn, ESCAPE);
@@ -992,7 +998,7 @@ export class ProgressiveLevels {
       for (let j = 0; j < nc; j++) {
         if (!mark[j]) continue;
         const f = Math.floor(state.cs[j] / 3);
-        if (!state.relabel(f, s, t)) fail(`split ${t}: a relabelled face has no corner s`);
+        if (!state.relabel(f, s, t)) fail(SPLITS_REFUSED.relabel(t));
         this.relabelFaces[relabel++] = f;
       }
       for (let c = 3 * firstNew; c < 3 * face; c++) state.link(sf[c], c);
@@ -1012,9 +1018,9 @@ export class ProgressiveLevels {
     }
     if (coder.broken) failShort();
     if (coder.position !== frame.coded.length) {
-      fail("split frame: the coded splits hold bytes past the last split");
+      fail(SPLITS_REFUSED.trailing());
     }
-    if (face !== faceEnd) fail("split frame: the splits' face counts do not add up to n_new_faces");
+    if (face !== faceEnd) fail(SPLITS_REFUSED.counts());
   }
 
   /** A split's positions, its connectivity applied (decode_connectivity's last steps):
@@ -1060,7 +1066,7 @@ export class ProgressiveLevels {
       else mid[axis] = (2 * (old + mid[axis]) + (e & 1) - e) / 2; // a + b = 2 (old + mid) + (e & 1)
       const a = mid[axis];
       if (!(a >= 0 && a <= qMax && a + e >= 0 && a + e <= qMax)) {
-        fail("split frame: a position leaves the grid ([0, 2^bits - 1])");
+        fail(SPLITS_REFUSED.grid());
       }
     }
   }

@@ -7,9 +7,7 @@
 //   const module = await loadSplitModule();          // null where it cannot be had
 //   new ProgressiveLevels(base, nFull, fFull, { wasm: module });
 
-import { fail } from "./wire.js";
-
-const FRAME_WORK_LIMIT = 1 << 21; // as refine.js: named in one of the messages below
+import { fail, SPLITS_REFUSED } from "./wire.js";
 
 /** The compiled decoder, or null (no WebAssembly, or refine.wasm not served): the
  * levels then decode in JavaScript. `url` defaults to refine.wasm beside this module. */
@@ -24,23 +22,10 @@ export async function loadSplitModule(url = new URL("./refine.wasm", import.meta
   }
 }
 
-const OUT_OF_MEMORY = 11;
-// refine.c's error codes, as refine.js words the same refusals.
-const MESSAGES = [
-  null,
-  () => "split frame: the coded splits end early (truncated or corrupt data)",
-  (t) => `split ${t}: names a vertex that does not exist yet`,
-  () => `split frame: the splits walk more than ${FRAME_WORK_LIMIT} corners of their split vertices`,
-  () => "split frame: the splits' face counts do not add up to n_new_faces",
-  (t) => `split ${t}: a new face uses a vertex that does not exist`,
-  (t, value) => `split frame: bad face code ${value}`,
-  (t) => `split ${t}: a third corner is not a neighbour of the split vertex`,
-  (t) => `split ${t}: a relabelled face has no corner s`,
-  () => "split frame: a position leaves the grid ([0, 2^bits - 1])",
-  () => "split frame: the coded splits hold bytes past the last split",
-  () => "split frame: the decoder ran out of memory",
-  () => "base mesh: a face names a vertex that does not exist",
-];
+// refine.c's error codes (its enum, in order): the refusals they stand for.
+const REFUSALS = [null, "short", "notYet", "work", "counts", "noVertex", "faceCode", "third",
+  "relabel", "grid", "trailing", "memory", "baseVertex"];
+const OUT_OF_MEMORY = REFUSALS.indexOf("memory");
 
 /**
  * The decoding state of ProgressiveLevels in WebAssembly memory: the received level's
@@ -70,7 +55,8 @@ export class WasmSplits {
   check(code) {
     if (code === 0) return;
     const w = this.exports;
-    fail(MESSAGES[code]?.(w.qem_error_split(), w.qem_error_value()) ?? `split decoder error ${code}`);
+    const refusal = SPLITS_REFUSED[REFUSALS[code]];
+    fail(refusal ? refusal(w.qem_error_split(), w.qem_error_value()) : `split decoder error ${code}`);
   }
 
   /** The received level's faces, as SplitState.faces. */

@@ -15,6 +15,24 @@ export function fail(message) {
   throw new WireFormatError(message);
 }
 
+/** A split decoder's refusals of a frame's coded splits, worded once for both (refine.js
+ * and the WebAssembly one, wasm_splits.js, which refuse the same frames the same way):
+ * `t` the split's new vertex, `value` what the message names. */
+export const SPLITS_REFUSED = {
+  short: () => "split frame: the coded splits end early (truncated or corrupt data)",
+  notYet: (t) => `split ${t}: names a vertex that does not exist yet`,
+  work: (t, limit) => `split frame: the splits walk more than ${limit} corners of their split vertices`,
+  counts: () => "split frame: the splits' face counts do not add up to n_new_faces",
+  noVertex: (t) => `split ${t}: a new face uses a vertex that does not exist`,
+  faceCode: (t, code) => `split frame: bad face code ${code}`,
+  third: (t) => `split ${t}: a third corner is not a neighbour of the split vertex`,
+  relabel: (t) => `split ${t}: a relabelled face has no corner s`,
+  grid: () => "split frame: a position leaves the grid ([0, 2^bits - 1])",
+  trailing: () => "split frame: the coded splits hold bytes past the last split",
+  memory: () => "split frame: the decoder ran out of memory",
+  baseVertex: () => "base mesh: a face names a vertex that does not exist",
+};
+
 /** A typed array over a copy of msgpack bin bytes (copied: views may be unaligned). */
 export function binArray(bytes, Type, count, what) {
   if (!(bytes instanceof Uint8Array) || bytes.length !== count * Type.BYTES_PER_ELEMENT) {

@@ -34,7 +34,7 @@ static void *take(u32 bytes) {
   return (void *)at;
 }
 
-// ---- errors: a code the JavaScript side turns into refine.js's message ---------------
+// ---- errors: a code wasm_splits.js turns into the message refine.js gives -----------
 enum {
   OK = 0, E_SHORT, E_NOT_YET, E_WORK, E_COUNTS, E_NO_VERTEX, E_FACE_CODE, E_THIRD,
   E_RELABEL, E_GRID, E_TRAILING, E_MEMORY, E_BASE,
@@ -641,7 +641,7 @@ i32 qem_decode(const u8 *coded, u32 coded_len, i32 n_from, i32 k, i32 faces_from
     gather(s);
     if (error) return error;
     corners_walked += nc;
-    if (i > 0 && corners_walked > FRAME_WORK_LIMIT) return E_WORK;
+    if (i > 0 && corners_walked > FRAME_WORK_LIMIT) { error_value = FRAME_WORK_LIMIT; return E_WORK; }
     keys_for = -1;
     ring_shape(s, &shape);
     i64 count = integer(COUNT_SLOTS);

@@ -1,6 +1,6 @@
 // The split decoder compiled to WebAssembly (client/web/wasm/refine.c, built into
 // refine.wasm beside this file by client/build_wasm.py): the same integers as refine.js's
-// SplitState and decodeSplits, in about 1.7x less time. ProgressiveLevels uses it when it is
+// SplitState and decodeSplits, in about half the time. ProgressiveLevels uses it when it is
 // given the compiled module and the mesh has no wedge keys (their decoding reads
 // SplitState's corner sets, so it stays in refine.js).
 //
@@ -29,8 +29,9 @@ const OUT_OF_MEMORY = REFUSALS.indexOf("memory");
 
 /**
  * The decoding state of ProgressiveLevels in WebAssembly memory: the received level's
- * faces and each vertex's block of corners and grid position, laid out as SplitState's
- * (`faces`, `fan`), so ProgressiveLevels reads the level it holds from them the same way.
+ * faces and each vertex's block of 16 int32s, with its grid position where SplitState's
+ * has it (`faces`, `fan`), so ProgressiveLevels reads the level it holds from them the
+ * same way. (The block's corners start one int later: refine.c keeps a stamp there.)
  */
 export class WasmSplits {
   constructor(module, base, nFull, fFull) {

@@ -1,6 +1,6 @@
 // The split decoder of refine.js (stream version 5; docs/formats.md section 2) in C for
 // WebAssembly: SplitState and ProgressiveLevels.decodeSplits step for step, the same
-// integers out, in about 1.7x less time (docs/performance.md). Built by client/build_wasm.py
+// integers out, in about half the time (docs/performance.md). Built by client/build_wasm.py
 // (clang for wasm32 from the ziglang package) into client/web/js/refine.wasm; driven by
 // client/web/js/wasm_splits.js. Streams with wedge keys are decoded by refine.js alone.
 //
@@ -81,14 +81,17 @@ static void coder_start(const u8 *bytes, u32 n) {
 static inline void normalise(void) {
   while (range < TOP) { range <<= 8; code = (code << 8) | next_byte(); }
 }
+// A decision without a branch on its outcome (which is as unpredictable as the data):
+// the masks select range_coder.js's two cases.
 static inline i32 bit(i32 ctx) {
   u32 p = probs[ctx];
   u32 bound = (range >> PROB_BITS) * p;
-  i32 b;
-  if (code < bound) { range = bound; probs[ctx] = (u16)(p + ((ONE - p) >> RATE)); b = 0; }
-  else { code -= bound; range -= bound; probs[ctx] = (u16)(p - (p >> RATE)); b = 1; }
+  u32 one = (u32)0 - (u32)(code >= bound); // all ones for a 1
+  code -= bound & one;
+  range = (bound & ~one) | ((range - bound) & one);
+  probs[ctx] = (u16)(p + ((((ONE - p) >> RATE) & ~one) - ((p >> RATE) & one)));
   normalise();
-  return b;
+  return (i32)(one & 1u);
 }
 static inline i32 direct(void) {
   u32 r = range >> 1;
@@ -143,8 +146,9 @@ static i64 uniform(i32 base, i64 n) {
 #define NORMAL_BITS 12
 #define LAPLACE_BITS 20
 #define FAN_BLOCK 16
-#define FAN_Q 2
-#define FAN_CORNERS 5
+#define FAN_Q 2 // where a block holds its vertex's grid position (3 int32s)
+#define STAMP 3 // after the position: the last set of neighbours the vertex was put in
+#define FAN_CORNERS 6
 #define FAN_INLINE (FAN_BLOCK - FAN_CORNERS)
 #define FRAME_WORK_LIMIT (1 << 21)
 #define ROWS 21
@@ -189,8 +193,8 @@ static void shift_to(i64 *values, i32 bits) {
   if (iabs(values[1]) > big) big = iabs(values[1]);
   if (iabs(values[2]) > big) big = iabs(values[2]);
   if (big < ((i64)1 << bits)) return;
-  i64 divisor = (i64)1 << (bit_length(big) - bits);
-  for (int d = 0; d < 3; d++) values[d] = floor_div(values[d], divisor);
+  i32 shift = bit_length(big) - bits; // floor division by 2^shift
+  for (int d = 0; d < 3; d++) values[d] >>= shift;
 }
 static inline i64 round_div(i64 num, i64 den) {
   if (den < 0) { num = -num; den = -den; }
@@ -209,11 +213,19 @@ static inline i64 decode_value(i32 magnitude_slots, i32 sign_slot) {
 // ---- the state (SplitState) ------------------------------------------------------------
 static i32 n_base, n_full, f_full, qmax;
 static i32 *faces;   // 3 f_full: the received level's faces
-static i32 *fan;     // FAN_BLOCK n_full: count, spill offset, position, corners
+static i32 *fan;     // FAN_BLOCK n_full: count, spill offset, position, stamp, corners
+// A vertex's position and stamp (a pointer into its block). A set of distinct neighbours
+// is made by stamping them, in place of a search of the set for each: the stamp sits
+// beside the position that the set's user reads next.
+static inline i32 *at(i32 v) { return fan + FAN_BLOCK * v + FAN_Q; }
+static i32 stamps;
+static i32 new_stamp(void) {
+  if (stamps == 0x7fffffff) { for (i32 v = 0; v < n_full; v++) at(v)[STAMP] = 0; stamps = 0; }
+  return ++stamps;
+}
 static i32 *spill; static u32 spill_len, spill_end;
 static i32 *cs, *after_, *before_, *nb, *open_, *ys; static u8 *mark; static double *keys;
 static u32 scratch;  // room of the corner buffers
-static i32 *met; static u32 met_len;
 static i32 nc, nn, keys_for;
 // outputs: as ProgressiveLevels holds them
 static i32 *out_faces, *split_vertex_out, *deltas_out, *level_faces, *relabel_offsets, *relabel_faces;
@@ -288,14 +300,6 @@ static void unlink(i32 v, i32 c) {
   }
 SORT_PREFIX(sort_prefix_i32, i32)
 SORT_PREFIX(sort_prefix_f64, double)
-static i32 insert_distinct(i32 *array, i32 n, i32 value) {
-  i32 j = n;
-  while (j > 0 && array[j - 1] > value) j--;
-  if (j > 0 && array[j - 1] == value) return n;
-  for (i32 i = n; i > j; i--) array[i] = array[i - 1];
-  array[j] = value;
-  return n + 1;
-}
 static i32 grow(u32 degree) {
   i32 *ncs = take(4 * degree);
   if (!ncs) FAIL_V(E_MEMORY, 0);
@@ -318,20 +322,14 @@ static void gather(i32 s) {
     after_[q] = faces[f + (j + 1) % 3];
     before_[q] = faces[f + (j + 2) % 3];
   }
-  i32 m = 0;
-  if (n <= FAN_SCAN) {
-    for (i32 q = 0; q < n; q++) {
-      if (after_[q] != s) m = insert_distinct(nb, m, after_[q]);
-      if (before_[q] != s) m = insert_distinct(nb, m, before_[q]);
-    }
-    nn = m;
-  } else {
-    for (i32 q = 0; q < n; q++) { if (after_[q] != s) nb[m++] = after_[q]; if (before_[q] != s) nb[m++] = before_[q]; }
-    sort_prefix_i32(nb, m);
-    i32 k = 0;
-    for (i32 q = 0; q < m; q++) if (k == 0 || nb[q] != nb[k - 1]) nb[k++] = nb[q];
-    nn = k;
+  i32 stamp = new_stamp(), m = 0;
+  for (i32 q = 0; q < n; q++) {
+    i32 a = after_[q], b = before_[q];
+    if (a != s && at(a)[STAMP] != stamp) { at(a)[STAMP] = stamp; nb[m++] = a; }
+    if (b != s && at(b)[STAMP] != stamp) { at(b)[STAMP] = stamp; nb[m++] = b; }
   }
+  sort_prefix_i32(nb, m);
+  nn = m;
   nc = n;
 }
 static void fan_keys(i32 forward) {
@@ -385,12 +383,12 @@ static void predict(i32 xl, i32 xr) {
 }
 typedef struct { i64 spread[3]; i64 normal[3]; i64 laplace[3]; i64 bulge; } Shape;
 static void ring_shape(i32 s, Shape *shape) {
-  i32 *q = fan;
-  i32 sx = q[FAN_BLOCK * s + FAN_Q], sy = q[FAN_BLOCK * s + FAN_Q + 1], sz = q[FAN_BLOCK * s + FAN_Q + 2];
+  i32 *q = fan + FAN_Q;
+  i32 sx = q[FAN_BLOCK * s], sy = q[FAN_BLOCK * s + 1], sz = q[FAN_BLOCK * s + 2];
   i32 bits = 0;
   i64 ax = 0, ay = 0, az = 0, lx = 0, ly = 0, lz = 0;
   for (i32 j = 0; j < nn; j++) {
-    i32 w = FAN_BLOCK * nb[j] + FAN_Q;
+    i32 w = FAN_BLOCK * nb[j];
     i32 ox = q[w] - sx, oy = q[w + 1] - sy, oz = q[w + 2] - sz;
     lx += ox; ly += oy; lz += oz;
     i32 bx = ox < 0 ? -ox : ox, by = oy < 0 ? -oy : oy, bz = oz < 0 ? -oz : oz;
@@ -404,7 +402,7 @@ static void ring_shape(i32 s, Shape *shape) {
   if (shift < 0) shift = 0;
   i64 nx = 0, ny = 0, nz = 0;
   for (i32 i = 0; i < nc; i++) {
-    i32 u = FAN_BLOCK * after_[i] + FAN_Q, w = FAN_BLOCK * before_[i] + FAN_Q;
+    i32 u = FAN_BLOCK * after_[i], w = FAN_BLOCK * before_[i];
     i64 ux = (q[u] - sx) >> shift, uy = (q[u + 1] - sy) >> shift, uz = (q[u + 2] - sz) >> shift;
     i64 wx = (q[w] - sx) >> shift, wy = (q[w + 1] - sy) >> shift, wz = (q[w + 2] - sz) >> shift;
     nx += uy * wz - uz * wy; ny += uz * wx - ux * wz; nz += ux * wy - uy * wx;
@@ -418,20 +416,17 @@ static void ring_shape(i32 s, Shape *shape) {
 static i32 ring_sum(i32 v, i32 other, i64 *total) {
   i32 *list;
   i32 n = corners_of(v, &list);
-  if (met_len < 2u * (u32)n) { met_len = 4u * (u32)n; met = take(4 * met_len); if (!met) FAIL_V(E_MEMORY, 0); }
-  i32 count = 0;
+  i32 stamp = new_stamp(), count = 0;
   i64 x = 0, y = 0, z = 0;
   for (i32 i = 0; i < n; i++) {
     i32 c = list[i], f = c - c % 3;
     for (int j = 0; j < 3; j++) {
       i32 w = faces[f + j];
-      if (w == v || w == other) continue;
-      i32 k = 0;
-      while (k < count && met[k] != w) k++;
-      if (k < count) continue;
-      met[count++] = w;
-      i32 q = FAN_BLOCK * w + FAN_Q;
-      x += fan[q]; y += fan[q + 1]; z += fan[q + 2];
+      i32 *p = at(w);
+      if (w == v || w == other || p[STAMP] == stamp) continue;
+      p[STAMP] = stamp;
+      count++;
+      x += p[0]; y += p[1]; z += p[2];
     }
   }
   total[0] = x; total[1] = y; total[2] = z;
@@ -521,7 +516,7 @@ static void decode_positions(i32 s, i32 t, const Shape *shape, i64 *edge, i64 *m
   if (bit(PLACE_SLOTS)) placement = 1 + bit(PLACE_SLOTS + 1);
   if (placement == 0) decode_mid(shape, edge, mid);
   for (int axis = 0; axis < 3; axis++) {
-    i64 old = fan[FAN_BLOCK * s + FAN_Q + axis];
+    i64 old = at(s)[axis];
     i64 e = edge[axis];
     if (placement == 1) mid[axis] = old;
     else if (placement == 2) mid[axis] = old - e;
@@ -543,7 +538,7 @@ i32 qem_init(i32 nb_, i32 nfull, i32 ffull, i32 fbase, i32 bits) {
   spill_len = 1024; spill = take(4 * spill_len); spill_end = 1;
   scratch = 16; cs = take(64); after_ = take(64); before_ = take(64); nb = take(128); mark = take(16);
   open_ = take(64); ys = take(64); keys = take(128);
-  met_len = 64; met = take(4 * met_len);
+  stamps = 0;
   probs = take(2 * CONTEXT_SLOTS);
   i32 n_splits = n_full - n_base;
   out_faces = take(12u * f_full);
@@ -552,7 +547,7 @@ i32 qem_init(i32 nb_, i32 nfull, i32 ffull, i32 fbase, i32 bits) {
   relabel_len = 2u * (n_splits > 8 ? n_splits : 8); relabel_faces = take(4 * relabel_len);
   base_q = take(12u * (n_base > 0 ? n_base : 1)); base_faces = take(12u * (fbase > 0 ? fbase : 1));
   if (!faces || !fan || !spill || !cs || !after_ || !before_ || !nb || !mark || !open_ || !ys ||
-      !keys || !met || !probs || !out_faces || !split_vertex_out || !deltas_out || !level_faces ||
+      !keys || !probs || !out_faces || !split_vertex_out || !deltas_out || !level_faces ||
       !relabel_offsets || !relabel_faces || !base_q || !base_faces)
     return 0;
   return 1;
@@ -560,7 +555,7 @@ i32 qem_init(i32 nb_, i32 nfull, i32 ffull, i32 fbase, i32 bits) {
 i32 *qem_base_positions(void) { return base_q; }
 i32 *qem_base_faces(void) { return base_faces; }
 i32 qem_link_base(void) {
-  for (i32 v = 0; v < n_base; v++) for (int d = 0; d < 3; d++) fan[FAN_BLOCK * v + FAN_Q + d] = base_q[3 * v + d];
+  for (i32 v = 0; v < n_base; v++) for (int d = 0; d < 3; d++) at(v)[d] = base_q[3 * v + d];
   for (i32 c = 0; c < 3 * f_base_count; c++) {
     i32 v = base_faces[c];
     if (v < 0 || v >= n_base) return E_BASE;
@@ -708,10 +703,10 @@ i32 qem_decode(const u8 *coded, u32 coded_len, i32 n_from, i32 k, i32 faces_from
     decode_positions(s, t, &shape, edge, mid);
     if (error) return error;
     for (int axis = 0; axis < 3; axis++) {
-      i32 old = fan[FAN_BLOCK * s + FAN_Q + axis];
+      i32 old = at(s)[axis];
       i32 a = (i32)mid[axis];
-      fan[FAN_BLOCK * s + FAN_Q + axis] = a;
-      fan[FAN_BLOCK * t + FAN_Q + axis] = a + (i32)edge[axis];
+      at(s)[axis] = a;
+      at(t)[axis] = a + (i32)edge[axis];
       deltas_out[6 * (first + i) + axis] = a - old;
       deltas_out[6 * (first + i) + 3 + axis] = a + (i32)edge[axis] - old;
     }

@@ -295,7 +295,7 @@ async function load(source) {
     abort,
     info: null,
     levels: null,
-    decoding: null, // the WorkerDecoder of its stream
+    decoding: new WorkerDecoder(), // of its stream: started now, given the mesh once its base is here
     want: Infinity, // the slider's count; Infinity follows the stream to the full mesh
     baseBytes: 0,
     splitBytes: 0,
@@ -333,7 +333,8 @@ async function load(source) {
     updateStats();
     current.streaming = true;
     const streamStarted = performance.now();
-    const decoding = new WorkerDecoder(levels, baseData, {
+    const decoding = current.decoding;
+    decoding.start(levels, baseData, {
       wasm: await splitModule,
       onRecord: () => {
         if (current !== view) return;
@@ -345,7 +346,6 @@ async function load(source) {
         updateStatsSoon(current);
       },
     });
-    current.decoding = decoding;
     try {
       await source.stream(levels, decoding, {
         signal,
@@ -363,6 +363,7 @@ async function load(source) {
     scene.changed(); // now, not after a background redraw's wait
     updateStats();
   } catch (error) {
+    current.decoding.close(); // the mesh could not be opened: its worker is not needed
     if (signal.aborted) return;
     current.streaming = false;
     current.failure = error.message;

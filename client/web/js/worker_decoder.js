@@ -1,7 +1,8 @@
 // The page's side of decoder_worker.js: frames go to the worker, records of their splits
 // come back and are added to the page's levels (a ProgressiveLevels without a decoder).
 //
-//   const decoding = new WorkerDecoder(levels, baseBytes, { onRecord, wasm });
+//   const decoding = new WorkerDecoder();        // the worker loads its modules meanwhile
+//   decoding.start(levels, baseBytes, { onRecord, wasm });
 //   decoding.addFrame(decodeFrame(payload));   // checked here (CRC-32, header), decoded there
 //   await decoding.finish();                   // every frame answered; rejects on a refusal
 //
@@ -11,11 +12,12 @@
 import { WireFormatError } from "./wire.js";
 
 export class WorkerDecoder {
-  /** `wasm`: the compiled split decoder (wasm_splits.js's loadSplitModule), or null for
-   * refine.js's. */
-  constructor(levels, baseBytes, { onRecord, wasm = null } = {}) {
-    this.levels = levels;
-    this.onRecord = onRecord;
+  /** The worker, started at once: a module worker fetches and compiles its scripts
+   * before it can decode (about 0.1 s in a browser), which then overlaps the fetch of
+   * the mesh's base. */
+  constructor() {
+    this.levels = null;
+    this.onRecord = null;
     this.decoder = null; // "wasm" or "js" once the worker has started
     this.pending = 0; // frames sent and not answered
     this.error = null;
@@ -26,12 +28,22 @@ export class WorkerDecoder {
       event.preventDefault?.();
       this.fault(new Error(`the decoder's worker failed: ${event.message ?? "it could not start"}`));
     };
+  }
+
+  /** Give the worker the mesh: `levels` (the page's, which the records are added to) at
+   * the base level `baseBytes` (its msgpack) holds. `wasm`: the compiled split decoder
+   * (wasm_splits.js's loadSplitModule), or null for refine.js's. */
+  start(levels, baseBytes, { onRecord, wasm = null } = {}) {
+    if (this.levels) throw new Error("the decoder's worker has a mesh already");
+    this.levels = levels;
+    this.onRecord = onRecord;
     this.worker.postMessage({ type: "start", base: baseBytes, nFull: levels.nFull, fFull: levels.fFull, wasm });
   }
 
   /** Send a frame (decodeFrame's result) to be decoded; throws the first refusal. */
   addFrame(frame) {
     if (this.error) throw this.error;
+    if (!this.levels) throw new Error("the decoder's worker has no mesh yet (start first)");
     // Own copies of the coded bytes (a view's whole buffer would be cloned), handed over.
     const coded = frame.coded.slice();
     const wedges = frame.wedges && { ...frame.wedges, coded: frame.wedges.coded.slice() };

@@ -47,7 +47,8 @@ const NORMAL_BITS = 12;
 const LAPLACE_BITS = 20;
 const FAN_BLOCK = 16; // int32s per vertex in SplitState.fan: a 64-byte cache line
 const FAN_Q = 2; // where a block holds its vertex's grid position (3 int32s)
-const FAN_CORNERS = 5; // where its corners start
+const FAN_STAMP = 5; // then a stamp: the last set of neighbours the vertex was put in
+const FAN_CORNERS = 6; // where its corners start
 const FAN_INLINE = FAN_BLOCK - FAN_CORNERS; // corners a block holds before its list spills
 const FRAME_SPLIT_LIMIT = 1 << 16; // as qem_core.stream: what one frame may allocate
 // As stream_coding.FRAME_WORK_LIMIT: the corners of split vertices one frame may walk.
@@ -103,16 +104,6 @@ function sortPrefix(array, n) {
     }
     array[j + 1] = value;
   }
-}
-
-/** Put value into the sorted distinct array[0..n) unless it is there; the new length. */
-function insertDistinct(array, n, value) {
-  let j = n;
-  while (j > 0 && array[j - 1] > value) j--;
-  if (j > 0 && array[j - 1] === value) return n;
-  for (let i = n; i > j; i--) array[i] = array[i - 1];
-  array[j] = value;
-  return n + 1;
 }
 
 /** Context of a sign: 0 for 0, 1 for positive, 2 for negative (stream_coding._sign). */
@@ -386,7 +377,7 @@ class SplitState {
     this.faces = new Int32Array(3 * fFull);
     this.faces.set(base.indices);
     // Each vertex's corners and grid position in a block of its own (count, spill
-    // offset, position, then the corners): a split reads its vertex's whole list in one
+    // offset, position, stamp, then the corners): a split reads its vertex's whole list in one
     // or two cache lines, and a neighbour's position brings in the list that a new face
     // at it appends to, where a linked list through the corners costs a dependent memory
     // miss per corner (the decoder waited on those more than it computed). A list longer
@@ -410,13 +401,23 @@ class SplitState {
     this.open = new Int32Array(16); // walk's sides of the corners not taken yet
     this.ys = new Int32Array(16); // vertices met walking around s
     this.keys = new Float64Array(16); // the fan's corners by side (fanKeys)
-    this.met = new Int32Array(64); // ringSum's neighbours
+    this.stamps = 0; // the last stamp given (newStamp)
     this.sumA = [0, 0, 0];
     this.sumB = [0, 0, 0];
     // decodeMid's frame: products past 2^31, in float64 arrays of their own (a fresh
     // array per split was garbage, and changed its elements' kind on the way)
     this.binormal = new Float64Array(3);
     this.reduced = new Float64Array(3);
+  }
+
+  /** A new stamp: a set of distinct neighbours is made by stamping each in its block
+   * (beside the position its user reads next) rather than by searching the set. */
+  newStamp() {
+    if (this.stamps === 0x7fffffff) {
+      for (let at = FAN_STAMP; at < this.fan.length; at += FAN_BLOCK) this.fan[at] = 0;
+      this.stamps = 0;
+    }
+    return ++this.stamps;
   }
 
   /** v's corners (any order) are list[at .. at + count), count returned, list and at
@@ -499,22 +500,22 @@ class SplitState {
       before[q] = faces[f + ((j + 2) % 3)];
     }
     // With s, a face's three corners: its others are those of the two that are not s.
+    const fan = this.fan;
+    const stamp = this.newStamp();
     let nn = 0;
-    if (nc <= FAN_SCAN) {
-      // each neighbour is met about twice: placed once, in a list of a handful
-      for (let q = 0; q < nc; q++) {
-        if (after[q] !== s) nn = insertDistinct(nb, nn, after[q]);
-        if (before[q] !== s) nn = insertDistinct(nb, nn, before[q]);
+    for (let q = 0; q < nc; q++) {
+      const a = FAN_BLOCK * after[q] + FAN_STAMP;
+      const b = FAN_BLOCK * before[q] + FAN_STAMP;
+      if (after[q] !== s && fan[a] !== stamp) {
+        fan[a] = stamp;
+        nb[nn++] = after[q];
       }
-    } else {
-      let m = 0;
-      for (let q = 0; q < nc; q++) {
-        if (after[q] !== s) nb[m++] = after[q];
-        if (before[q] !== s) nb[m++] = before[q];
+      if (before[q] !== s && fan[b] !== stamp) {
+        fan[b] = stamp;
+        nb[nn++] = before[q];
       }
-      sortPrefix(nb, m);
-      for (let q = 0; q < m; q++) if (nn === 0 || nb[q] !== nb[nn - 1]) nb[nn++] = nb[q];
     }
+    sortPrefix(nb, nn);
     this.nc = nc;
     this.nn = nn;
   }
@@ -678,16 +679,14 @@ class SplitState {
   }
 
   /** Sum of the grid positions of v's distinct neighbours other than `other` into
-   * total; returns their number (stream_coding._ring_sum). The neighbours met are
-   * few, so they are looked up in a short list rather than marked in a per-vertex
-   * array (a memory miss each). */
+   * total; returns their number (stream_coding._ring_sum). Each is stamped in its
+   * block, whose position is read next. */
   ringSum(v, other, total) {
     const { faces, fan } = this;
     const n = this.cornersOf(v);
     const list = this.list;
     const at = this.listAt;
-    if (this.met.length < 2 * n) this.met = new Int32Array(4 * n);
-    const met = this.met;
+    const stamp = this.newStamp();
     let count = 0;
     let x = 0;
     let y = 0;
@@ -697,12 +696,11 @@ class SplitState {
       const f = c - (c % 3);
       for (let j = 0; j < 3; j++) {
         const w = faces[f + j];
-        if (w === v || w === other) continue;
-        let k = 0;
-        while (k < count && met[k] !== w) k++;
-        if (k < count) continue;
-        met[count++] = w;
-        const q = FAN_BLOCK * w + FAN_Q;
+        const block = FAN_BLOCK * w;
+        if (w === v || w === other || fan[block + FAN_STAMP] === stamp) continue;
+        fan[block + FAN_STAMP] = stamp;
+        count++;
+        const q = block + FAN_Q;
         x += fan[q];
         y += fan[q + 1];
         z += fan[q + 2];

@@ -29,9 +29,8 @@ const OUT_OF_MEMORY = REFUSALS.indexOf("memory");
 
 /**
  * The decoding state of ProgressiveLevels in WebAssembly memory: the received level's
- * faces and each vertex's block of 16 int32s, with its grid position where SplitState's
- * has it (`faces`, `fan`), so ProgressiveLevels reads the level it holds from them the
- * same way. (The block's corners start one int later: refine.c keeps a stamp there.)
+ * faces and each vertex's block of corners and grid position, laid out as SplitState's
+ * (`faces`, `fan`), so ProgressiveLevels reads the level it holds from them the same way.
  */
 export class WasmSplits {
   constructor(module, base, nFull, fFull) {

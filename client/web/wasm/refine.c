@@ -149,7 +149,7 @@ static i64 uniform(i32 base, i64 n) {
 #define LAPLACE_BITS 20
 #define FAN_BLOCK 16
 #define FAN_Q 2 // where a block holds its vertex's grid position (3 int32s)
-#define STAMP 3 // after the position: the last set of neighbours the vertex was put in
+#define STAMP 3 // after the position: the last set of neighbours the vertex was put in (FAN_STAMP)
 #define FAN_CORNERS 6
 #define FAN_INLINE (FAN_BLOCK - FAN_CORNERS)
 #define FRAME_WORK_LIMIT (1 << 21)

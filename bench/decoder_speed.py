@@ -10,7 +10,7 @@ compression level 7 (draco_encoder's default; DracoPy). Then:
 - **node**: ``bench/node/decoder_speed.mjs`` times the viewer's decoder
   (client/web/js/refine.js: base + whole stream to the full level, the buffers a renderer
   reads), its frames decoded in JavaScript and by the WebAssembly split decoder
-  (js/refine.wasm, which the viewer's worker uses for a mesh without wedges), and Draco's
+  (js/refine.wasm, which the viewer's worker uses), and Draco's
   WebAssembly decoder (three.js's copy, as DRACOLoader runs it, positions and indices
   copied out), alternating, in one node process, after one untimed run each;
 - **Python**: ``qem_core.stream.SplitStreamDecoder`` (from the base msgpack, every frame
@@ -210,8 +210,8 @@ def write_report(path: Path, record: dict[str, Any]) -> None:
         f"Median of {record['runs']} decodes each, alternating, after one untimed decode "
         "each. *node*: the viewer's decoder (refine.js, base + whole stored stream to the "
         "full level), its frames decoded in JavaScript (*refine.js*) and by the WebAssembly "
-        "split decoder (*in wasm*: js/refine.wasm, what the viewer's worker runs for a mesh "
-        "without wedges), against Draco's WebAssembly decoder (three.js's copy, as "
+        "split decoder (*in wasm*: js/refine.wasm, what the viewer's worker runs), against "
+        "Draco's WebAssembly decoder (three.js's copy, as "
         "DRACOLoader runs it) in one node process; *Python*: `SplitStreamDecoder` against "
         f"`DracoPy.decode`. Draco: {DRACO_BITS}-bit positions, compression level "
         f"{DRACO_LEVEL}. Ratios: progressive / Draco (below 1: faster or smaller). Per "

@@ -6,7 +6,7 @@ import { pathToFileURL } from "node:url";
 /** A function turning the case's base mesh plus its whole split stream into the full
  * level (the buffers a renderer reads); it returns { ms, vertices, faces, decoder }.
  * `wasm`: the frames decoded by the WebAssembly split decoder (js/refine.wasm), as the
- * viewer's worker decodes a mesh without wedges. */
+ * viewer's worker decodes them. */
 export async function loadRefineCase(web, dir, { wasm = false } = {}) {
   const { FrameCutter, ProgressiveLevels, decodeBaseMesh, decodeFrame } = await import(
     pathToFileURL(`${web}/js/refine.js`).href

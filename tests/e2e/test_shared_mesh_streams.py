@@ -109,15 +109,14 @@ def test_refine_js_reaches_every_frame_boundary_exactly_down_and_up(built, name,
 @pytest.mark.parametrize("server", ["embedded"], indirect=True)
 def test_the_viewer_decodes_every_shared_mesh_in_its_worker_exactly(server, tmp_path):
     """The viewer as a user opens it: each mesh uploaded, streamed from its stored frames
-    and decoded in the page's worker (in WebAssembly, or by refine.js where the mesh has
-    wedges); the levels on screen are the server's."""
+    and decoded in the page's worker (in WebAssembly, with refine.js's wedges.js for the
+    wedge keys of a mesh that has them); the levels on screen are the server's."""
     uploaded = {name: upload_ready(server, name) for name in UPLOADED}
     with chromium_page(tmp_path / "profile") as page, httpx.Client(timeout=60) as http:
         for name, info in uploaded.items():
             state = open_at_full_detail(page, server.url, info["id"])
             assert state["failure"] is None, (name, state["failure"])
-            # WebAssembly decodes the frames, refine.js those with wedge keys
-            assert state["decoder"] == ("js" if state["attributes"] else "wasm"), name
+            assert state["decoder"] == "wasm", name  # every mesh's splits, wedges or none
             url = f"{server.url}/v1/meshes/{info['id']}"
             n_full, n_base = info["vertices"], info["min_vertices"]
             levels = (n_full, (n_base + n_full) // 2, n_base, n_base + 1, n_full)

@@ -260,8 +260,8 @@ def run_refine_js(
     `stream` (default: pm's whole split stream, two splits a frame) from lod(`start`)
     (default: the base); or {"error": ..., "held": vertex count received} if it refused
     the stream. The frames are decoded twice, by refine.js and by the WebAssembly split
-    decoder (refine.wasm; refine.js alone where the mesh has wedges), which must agree
-    on every level and refusal."""
+    decoder (refine.wasm, with refine.js's wedges.js for a mesh's wedges), which must
+    agree on every level and refusal."""
     node = require_node()
     start = pm.n_base if start is None else start
     base = encode_level(pm, start, "msgpack").content
@@ -283,8 +283,7 @@ def run_refine_js(
     answers = json.loads(done.stdout)
     in_js, in_wasm = answers["js"], answers["wasm"]
     assert in_js["decoder"] == "js"
-    expected = "js" if quantised_wedges(pm, start) is not None else "wasm"
-    assert in_wasm.pop("decoder") == expected
+    assert in_wasm.pop("decoder") == "wasm"
     in_js.pop("decoder")
     assert in_wasm == in_js, "the WebAssembly decoder and refine.js disagree"
     if "error" in in_js:

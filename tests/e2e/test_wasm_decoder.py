@@ -1,8 +1,10 @@
 """The WebAssembly split decoder (client/web/wasm/refine.c) against refine.js on damaged
-frames: thousands of frames whose coded splits or counts were changed at random, then
-sealed again with their right CRC-32 (so they reach the decoders, not the checksum), go
-through both in one node process. On every one they must agree: the same refusal with
-the same message and the same levels kept, or the same levels decoded, bit for bit.
+frames: thousands of frames whose coded splits, wedge keys or counts were changed at
+random, then sealed again with their right CRC-32 (so they reach the decoders, not the
+checksum), go through both in one node process (a mesh's wedge keys are decoded by
+wedges.js in both, called from each split of the C decoder). On every one they must
+agree: the same refusal with the same message and the same levels kept, or the same
+levels decoded, bit for bit.
 Nothing may hang or crash either (the C decoder checks every index a frame gives).
 
 The levels on undamaged streams, and the hand-made hostile frames, are compared for both
@@ -21,6 +23,7 @@ import pytest
 from qem_core.levels import encode_level
 from qem_core.stream import encode_split_frames
 from tests.tiny_meshes import icosphere, perforated_icosphere
+from tests.wedge_meshes import seamed_mesh
 
 from .test_viewer import WEB, require_node, require_wasm, sealed
 
@@ -49,7 +52,10 @@ function outcome(stream, module) {
   }
   levels.setLevel(levels.received);
   const hash = createHash("sha256");
-  for (const a of [levels.positions, levels.indices]) hash.update(new Uint8Array(a.buffer));
+  const wedges = levels.wedges ? [levels.wedges.cornerWedge, levels.wedges.values] : [];
+  for (const a of [levels.positions, levels.indices, ...wedges]) {
+    hash.update(new Uint8Array(a.buffer));
+  }
   return { decoder: levels.decoder, held: levels.received, digest: hash.digest("hex") };
 }
 for (let i = 0; i < plan.streams; i++) {
@@ -62,9 +68,11 @@ STREAMS = 400  # damaged streams a mesh
 
 
 def _damaged(frame: bytes, rng: np.random.Generator) -> bytes:
-    """The frame with one random change to its coded splits or its counts, sealed again."""
+    """The frame with one random change to its coded splits (or, half the time in a frame
+    with wedge keys, its coded wedges) or its counts, sealed again."""
     body = msgpack.unpackb(frame[4:-4])
-    coded = bytearray(body["splits"])
+    field = "wedges" if "wedges" in body and rng.integers(2) else "splits"
+    coded = bytearray(body[field])
     kind = rng.integers(6)
     if kind <= 1 and coded:  # bits flipped
         for _ in range(1 + int(rng.integers(3))):
@@ -80,13 +88,14 @@ def _damaged(frame: bytes, rng: np.random.Generator) -> bytes:
     else:  # a count off by a little
         key = ("n_new_faces", "n_to")[int(rng.integers(2))]
         body[key] = max(0, body[key] + int(rng.choice([-2, -1, 1, 2])))
-    body["splits"] = bytes(coded)
+    body[field] = bytes(coded)
     return sealed(msgpack.packb(body))
 
 
 MESHES = {
     "closed": lambda: icosphere(3, jitter=0.05),
     "holes": lambda: perforated_icosphere(3, jitter=0.05, holes=6),  # open fans, pinches
+    "wedges": lambda: seamed_mesh(*icosphere(3, jitter=0.05), seed=5),  # a UV seam, colours
 }
 
 
@@ -95,8 +104,11 @@ def test_wasm_decoder_agrees_with_refine_js_on_damaged_frames(make, tmp_path):
     node = require_node()
     import qem_core
 
-    vertices, faces = make()
-    pm = qem_core.build(vertices, faces)
+    made = make()
+    if isinstance(made, qem_core.Mesh):
+        pm = qem_core.build_mesh(made)
+    else:
+        pm = qem_core.build(*made)
     frames = list(encode_split_frames(pm, pm.n_base, pm.n_full, splits_per_frame=16))
     rng = np.random.default_rng(20261207)
     for i in range(STREAMS):

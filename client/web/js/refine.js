@@ -757,8 +757,8 @@ export class ProgressiveLevels {
   /** `decoder: false` holds the levels only: frames are decoded elsewhere (a Web Worker,
    * decoder_worker.js) and their splits arrive as records (`addRecord`), so the big
    * decoding state is not kept twice. `wasm`, the compiled split decoder
-   * (wasm_splits.js's loadSplitModule), decodes the frames of a mesh without wedge keys
-   * in WebAssembly, with the same results. */
+   * (wasm_splits.js's loadSplitModule), decodes the frames' splits in WebAssembly, with
+   * the same results (a mesh's wedge keys are decoded by wedges.js still, at each split). */
   constructor(base, nFull, fFull, { decoder = true, wasm = null } = {}) {
     if (!(nFull >= base.nVertices && fFull >= base.nFaces)) {
       fail(`the full mesh (${nFull} vertices, ${fFull} faces) is smaller than the base mesh`);
@@ -783,7 +783,7 @@ export class ProgressiveLevels {
     this.received = this.nBase; // vertex count up to which splits are held
     // The received level, for decoding.
     if (!decoder) this.state = null;
-    else if (wasm !== null && !base.wedges) this.state = new WasmSplits(wasm, base, nFull, fFull);
+    else if (wasm !== null) this.state = new WasmSplits(wasm, base, nFull, fFull);
     else this.state = new SplitState(base, nFull, fFull);
     this.contexts = null; // the range coder's, as the stream's last frame left them
     this.broken = null; // why a frame was refused half-way
@@ -791,6 +791,15 @@ export class ProgressiveLevels {
     // Appearance (UVs, colours, normals) when the base mesh has wedges; the stream's
     // wedge fields are ignored without.
     this.wedges = base.wedges ? new WedgeLevels(base, this, { decoder }) : null;
+    if (this.wedges && this.state instanceof WasmSplits) {
+      // The module decodes the splits and calls out for each one's wedges, which
+      // WedgeLevels decodes reading the module's state as it reads a SplitState's: the
+      // same arrays (WasmSplits.stateView), and SplitState's own way to a vertex's list.
+      const splits = this.state;
+      splits.stateView().cornersOf = SplitState.prototype.cornersOf; // the view is kept
+      splits.onWedgeSplit = (i, s, t, nc, firstFace, face) =>
+        this.wedges.decodeSplit(i, s, t, splits.stateView(), nc, firstFace, face);
+    }
     this.texture = base.texture;
     this.materials = base.materials;
   }

@@ -1,8 +1,9 @@
 // The split decoder compiled to WebAssembly (client/web/wasm/refine.c, built into
 // refine.wasm beside this file by client/build_wasm.py): the same integers as refine.js's
 // SplitState and decodeSplits, in about half the time. ProgressiveLevels uses it when it is
-// given the compiled module and the mesh has no wedge keys (their decoding reads
-// SplitState's corner sets, so it stays in refine.js).
+// given the compiled module. A mesh's wedge keys (appearance attributes) are decoded by
+// wedges.js still: the module calls out to it at each split (`onWedgeSplit`), and it reads
+// the module's state through `stateView` as it reads a SplitState.
 //
 //   const module = await loadSplitModule();          // null where it cannot be had
 //   new ProgressiveLevels(base, nFull, fFull, { wasm: module });
@@ -34,12 +35,17 @@ const OUT_OF_MEMORY = REFUSALS.indexOf("memory");
  */
 export class WasmSplits {
   constructor(module, base, nFull, fFull) {
-    this.exports = new WebAssembly.Instance(module, {}).exports;
+    // Each split of a mesh with wedges: onWedgeSplit(i, s, t, nc, firstFace, face), as
+    // refine.js calls WedgeLevels.decodeSplit (ProgressiveLevels sets it).
+    this.onWedgeSplit = null;
+    const env = { wedge_split: (...split) => this.onWedgeSplit(...split) };
+    this.exports = new WebAssembly.Instance(module, { env }).exports;
     this.nBase = base.nVertices;
     this.nFull = nFull;
     this.fFull = fFull;
+    this.view = { buffer: null };
     const w = this.exports;
-    if (!w.qem_init(base.nVertices, nFull, fFull, base.nFaces, base.bits)) {
+    if (!w.qem_init(base.nVertices, nFull, fFull, base.nFaces, base.bits, base.wedges ? 1 : 0)) {
       fail("the split decoder has no room for this mesh (WebAssembly memory)");
     }
     this.ints(w.qem_base_positions(), 3 * base.nVertices).set(base.positions);
@@ -67,6 +73,22 @@ export class WasmSplits {
   /** Each vertex's block (count, spill offset, grid position, corners), as SplitState.fan. */
   get fan() {
     return this.ints(this.exports.qem_fan(), this.exports.qem_fan_ints());
+  }
+
+  /** The arrays a SplitState holds, as views of the module's memory (`faces`, `fan`,
+   * `spill`, and `cs`, the sorted corners of the split being decoded), made anew only
+   * when the memory grew or a buffer moved. */
+  stateView() {
+    const w = this.exports;
+    const view = this.view;
+    const [buffer, cs, spill] = [w.memory.buffer, w.qem_cs(), w.qem_spill()];
+    if (view.buffer === buffer && view.csAt === cs && view.spillAt === spill) return view;
+    Object.assign(view, { buffer, csAt: cs, spillAt: spill });
+    view.faces = this.faces;
+    view.fan = this.fan;
+    view.spill = this.ints(spill, w.qem_spill_ints());
+    view.cs = this.ints(cs, w.qem_cs_ints());
+    return view;
   }
 
   /** Decode `frame` (decodeFrame's result, checked by ProgressiveLevels.addFrame) and

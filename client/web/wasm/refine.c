@@ -2,7 +2,8 @@
 // WebAssembly: SplitState and ProgressiveLevels.decodeSplits step for step, the same
 // integers out, in about half the time (docs/performance.md). Built by client/build_wasm.py
 // (clang for wasm32 from the ziglang package) into client/web/js/refine.wasm; driven by
-// client/web/js/wasm_splits.js. Streams with wedge keys are decoded by refine.js alone.
+// client/web/js/wasm_splits.js. A stream's wedge keys (a mesh with appearance attributes)
+// are decoded by refine.js's wedges.js, called from each split (wedge_split, below).
 //
 // Every index read from a frame is checked before it is used, as refine.js checks it (the
 // caller, ProgressiveLevels.addFrame, has checked the frame's counts against the mesh):
@@ -528,13 +529,24 @@ static void decode_positions(i32 s, i32 t, const Shape *shape, i64 *edge, i64 *m
   }
 }
 
+// ---- the wedge side ---------------------------------------------------------------------
+// For a mesh with wedges, each split calls out to the page's wedges.js
+// (WedgeLevels.decodeSplit) once its faces are linked and before its positions, where
+// refine.js calls it. That reads this state (faces, cs, the corner lists) through the
+// exports below, and refuses a frame by throwing: the throw unwinds through qem_decode,
+// and the levels take no more frames.
+__attribute__((import_module("env"), import_name("wedge_split")))
+void wedge_split(i32 i, i32 s, i32 t, i32 nc, i32 first_face, i32 face);
+static i32 with_wedges;
+
 // ---- the API -------------------------------------------------------------------------------
 // init: buffers for the full mesh; returns the offset of the base's positions (3 n_base
 // int32) and faces (3 f_base int32), which the caller fills before link_base.
 static i32 *base_q, *base_faces;
 static i32 f_base_count;
-i32 qem_init(i32 nb_, i32 nfull, i32 ffull, i32 fbase, i32 bits) {
+i32 qem_init(i32 nb_, i32 nfull, i32 ffull, i32 fbase, i32 bits, i32 wedges) {
   n_base = nb_; n_full = nfull; f_full = ffull; f_base_count = fbase; qmax = (i32)((1u << bits) - 1u);
+  with_wedges = wedges;
   error = 0;
   faces = take(12u * f_full); fan = take(4u * FAN_BLOCK * n_full);
   spill_len = 1024; spill = take(4 * spill_len); spill_end = 1;
@@ -577,6 +589,12 @@ i32 *qem_out_faces(void) { return out_faces; }
 i32 *qem_faces(void) { return faces; }
 i32 *qem_fan(void) { return fan; }
 i32 qem_fan_ints(void) { return FAN_BLOCK * n_full; }
+// where the corner lists that outgrew their blocks are, and the sorted corners of the
+// split being decoded (both move when they grow)
+i32 *qem_spill(void) { return spill; }
+i32 qem_spill_ints(void) { return (i32)spill_len; }
+i32 *qem_cs(void) { return cs; }
+i32 qem_cs_ints(void) { return (i32)scratch; }
 static u8 *coded_room; static u32 coded_len_room;
 // room for a frame's coded bytes, reused from frame to frame; 0 when memory ran out
 u8 *qem_coded(u32 n) {
@@ -702,6 +720,7 @@ i32 qem_decode(const u8 *coded, u32 coded_len, i32 n_from, i32 k, i32 faces_from
       relabel_faces[relabel_at++] = f;
     }
     for (i32 c = 3 * first_new; c < 3 * face; c++) { link(faces[c], c); if (error) return error; }
+    if (with_wedges) wedge_split(i, s, t, nc, first_new, face);
     decode_positions(s, t, &shape, edge, mid);
     if (error) return error;
     for (int axis = 0; axis < 3; axis++) {

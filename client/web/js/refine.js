@@ -28,6 +28,7 @@ import { decode } from "../node_modules/@msgpack/msgpack/dist.esm/index.mjs";
 import { bitLength, INTEGER_SLOTS, newProbs, RangeDecoder, UNIFORM_SLOTS } from "./range_coder.js";
 import { binArray, fail, FrameCutter, gridClose, INDEX_TYPES, SPLITS_REFUSED, WireFormatError } from "./wire.js";
 import { WasmSplits } from "./wasm_splits.js";
+import { sortPrefix } from "./sorted.js";
 import { decodeBaseWedges, decodeWedgeFields, WedgeLevels } from "./wedges.js";
 
 export { FrameCutter, WireFormatError };
@@ -87,24 +88,6 @@ export const CONTEXT_SLOTS = MID_SIGN_SLOTS + 6;
 // 2 ** n for the shifts below: `2 ** variable` calls the C library's pow (6 % of a
 // dragon decode).
 const POW2 = Float64Array.from({ length: 64 }, (_, n) => 2 ** n);
-
-/** Sort array[0..n) ascending: by insertion for the few entries of a vertex's ring (a
- * typed array's sort costs more than it sorts there), else the typed array's sort. */
-function sortPrefix(array, n) {
-  if (n > 32) {
-    array.subarray(0, n).sort();
-    return;
-  }
-  for (let i = 1; i < n; i++) {
-    const value = array[i];
-    let j = i - 1;
-    while (j >= 0 && array[j] > value) {
-      array[j + 1] = array[j];
-      j--;
-    }
-    array[j + 1] = value;
-  }
-}
 
 /** Context of a sign: 0 for 0, 1 for positive, 2 for negative (stream_coding._sign). */
 function signContext(value) {

@@ -14,6 +14,7 @@
 // per-split records of corner and value changes.
 
 import { bitLength, INTEGER_SLOTS, newProbs, RangeDecoder } from "./range_coder.js";
+import { distinctSorted, findSorted, sortPrefix } from "./sorted.js";
 import { binArray, fail, gridClose, INDEX_TYPES } from "./wire.js";
 
 const ESCAPE = 255; // as wedge_coding.py: a wedge given as a back-distance (symbols
@@ -214,8 +215,12 @@ export class WedgeLevels {
     this.valueChanges = new Int32Array(2 * this.width * this.valueWedges.length);
     this.nCornerChanges = 0;
     this.nValueChanges = 0;
+    // Per-split buffers, grown as needed (a split allocates nothing).
     this.scratch = {
       old: new Int32Array(16), ws: new Int32Array(16), list: new Int32Array(32), reads: 0,
+      mine: new Int32Array(16), listed: new Int32Array(16), mapTo: new Int32Array(16),
+      stays: new Uint8Array(16), used: new Uint8Array(16), before: new Int32Array(16),
+      changed: new Int32Array(16), from: new Int32Array(16),
     };
     this.frame = null;
     this.contexts = null; // the wedge fields' range coder contexts, as the last frame left them
@@ -268,12 +273,21 @@ export class WedgeLevels {
     for (let q = 0; q < nc; q++) old[q] = ws[q] = cw[cs[q]];
     const nws = distinctSorted(ws, nc);
     if (f.atRow + nws + nUpdates + nNew > f.nRows) fail("split frame: a field ends before the splits do");
-    const listed = new Int32Array(nws + nNew); // L: ws, then the new wedges
-    listed.set(ws.subarray(0, nws));
-    for (let j = 0; j < nNew; j++) listed[nws + j] = W + j;
-    const mapTo = new Int32Array(nws).fill(-1);
-    const stays = new Uint8Array(nws);
-    const used = new Uint8Array(nNew);
+    const nListed = nws + nNew;
+    sc.listed = grow(sc.listed, nListed);
+    sc.mapTo = grow(sc.mapTo, nws);
+    sc.stays = grow(sc.stays, nws);
+    sc.used = grow(sc.used, nNew);
+    const { listed, mapTo, stays, used } = sc; // L: ws, then the new wedges
+    for (let q = 0; q < nws; q++) {
+      listed[q] = ws[q];
+      mapTo[q] = -1;
+      stays[q] = 0;
+    }
+    for (let j = 0; j < nNew; j++) {
+      listed[nws + j] = W + j;
+      used[j] = 0;
+    }
     for (let q = 0; q < nc; q++) if (faces[cs[q]] === s) stays[findSorted(ws, nws, old[q])] = 1;
     let fresh = 0;
     const nCoded = nc + 3 * (face - firstFace);
@@ -283,11 +297,11 @@ export class WedgeLevels {
       const c = z < nc ? cs[z] : 3 * firstFace + z - nc;
       const v = faces[c];
       let list = listed;
-      let nList = listed.length;
+      let nList = nListed;
       if (v !== s && v !== t) {
-        const [mine, nMine] = sortedCorners(state, v, c, sc);
+        const nMine = sortedCorners(state, v, c, sc);
         sc.list = grow(sc.list, nMine);
-        for (let q = 0; q < nMine; q++) sc.list[q] = cw[mine[q]];
+        for (let q = 0; q < nMine; q++) sc.list[q] = cw[sc.mine[q]];
         list = sc.list;
         nList = distinctSorted(list, nMine);
       }
@@ -301,7 +315,7 @@ export class WedgeLevels {
         else predicted = old[z];
       } else {
         predicted = predictNewCorner(state, cw, c, s, t, old, nc, sc);
-        if (predicted < 0 && (v === s || v === t) && listed.length > 0) {
+        if (predicted < 0 && (v === s || v === t) && nListed > 0) {
           predicted = fresh < nNew ? W + fresh : listed[0];
         }
       }
@@ -364,47 +378,52 @@ export class WedgeLevels {
     const values = this.receivedValues;
     const W = this.nWedges;
     const qMax = this.grid.qMax;
-    const row = (r, d) => f.rows[d * f.nRows + f.atRow + r];
-    const onGrid = (value, d) => {
-      if (!(value >= 0 && value <= qMax[d])) fail("split frame: a wedge value leaves its grid");
-      return value;
-    };
-    const before = new Int32Array(nws * width);
+    const { rows, nRows, atRow } = f;
+    const sc = this.scratch;
+    // The rows' values before (ws's), and the wedges changed with their old values.
+    sc.before = grow(sc.before, nws * width);
+    sc.changed = grow(sc.changed, nws + nUpdates);
+    sc.from = grow(sc.from, (nws + nUpdates) * width);
+    const { before, changed, from } = sc;
+    let nChanged = 0;
     for (let q = 0; q < nws; q++) {
       for (let d = 0; d < width; d++) before[q * width + d] = values[ws[q] * width + d];
     }
     if (f.atBack + nUpdates > f.backs.length) fail("split frame: a field ends before the splits do");
-    const changed = [];
     for (let q = 0; q < nws; q++) {
       let same = true;
       for (let d = 0; d < width; d++) {
-        const value = onGrid(before[q * width + d] + row(q, d), d);
+        const value = onGrid(before[q * width + d] + rows[d * nRows + atRow + q], qMax[d]);
         if (value !== before[q * width + d]) same = false;
         values[ws[q] * width + d] = value;
       }
-      if (!same) changed.push([ws[q], before.subarray(q * width, (q + 1) * width)]);
+      if (same) continue;
+      for (let d = 0; d < width; d++) from[nChanged * width + d] = before[q * width + d];
+      changed[nChanged++] = ws[q];
     }
     for (let e = 0; e < nUpdates; e++) {
       const wedge = W - f.backs[f.atBack + e];
       if (!(wedge >= 0 && wedge < W)) fail("split frame: a corner or update names a wedge that does not exist");
-      const from = values.slice(wedge * width, (wedge + 1) * width);
       for (let d = 0; d < width; d++) {
-        values[wedge * width + d] = onGrid(values[wedge * width + d] + row(nws + e, d), d);
+        const old = values[wedge * width + d];
+        from[nChanged * width + d] = old;
+        values[wedge * width + d] = onGrid(old + rows[d * nRows + atRow + nws + e], qMax[d]);
       }
-      changed.push([wedge, from]);
+      changed[nChanged++] = wedge;
     }
     f.atBack += nUpdates;
     for (let j = 0; j < nNew; j++) {
-      let parent = mapTo.indexOf(W + j);
+      let parent = -1;
+      for (let q = 0; q < nws && parent < 0; q++) if (mapTo[q] === W + j) parent = q;
       if (parent < 0 && nws > 0) parent = 0;
       for (let d = 0; d < width; d++) {
         const predicted = parent >= 0 ? before[parent * width + d] : 0;
-        const value = onGrid(predicted + row(nws + nUpdates + j, d), d);
+        const value = onGrid(predicted + rows[d * nRows + atRow + nws + nUpdates + j], qMax[d]);
         values[(W + j) * width + d] = value;
         this.values[(W + j) * width + d] = value; // unused below its split: set at once
       }
     }
-    for (const [wedge, from] of changed) this.pushValueChange(wedge, from, values);
+    for (let q = 0; q < nChanged; q++) this.pushValueChange(changed[q], from, q * width, values);
     f.atRow += nws + nUpdates + nNew;
     this.nWedges = W + nNew;
   }
@@ -426,14 +445,18 @@ export class WedgeLevels {
     this.cornerChanges[3 * n + 2] = to;
   }
 
-  pushValueChange(wedge, from, values) {
+  /** Wedge `wedge` changed from from[at..at + width) to its values in `values`. */
+  pushValueChange(wedge, from, at, values) {
     const n = this.nValueChanges;
     const width = this.width;
     this.valueWedges = grow(this.valueWedges, n + 1);
     this.valueChanges = grow(this.valueChanges, 2 * width * (n + 1));
     this.valueWedges[n] = wedge;
-    this.valueChanges.set(from, 2 * width * n);
-    this.valueChanges.set(values.subarray(wedge * width, (wedge + 1) * width), 2 * width * n + width);
+    const changes = this.valueChanges;
+    for (let d = 0; d < width; d++) {
+      changes[2 * width * n + d] = from[at + d];
+      changes[2 * width * n + width + d] = values[wedge * width + d];
+    }
     this.nValueChanges = n + 1;
   }
 
@@ -510,7 +533,7 @@ export class WedgeLevels {
       const r = direction > 0 ? first + n : last - 1 - n;
       const wedge = this.valueWedges[r];
       const at = 2 * width * r + (direction > 0 ? width : 0);
-      this.values.set(this.valueChanges.subarray(at, at + width), wedge * width);
+      for (let d = 0; d < width; d++) this.values[wedge * width + d] = this.valueChanges[at + d];
       this.render.wedgeChanged(wedge);
     }
   }
@@ -520,37 +543,23 @@ export class WedgeLevels {
   }
 }
 
-/** values[0..n) sorted ascending, repeats dropped; returns the new length. */
-function distinctSorted(values, n) {
-  values.subarray(0, n).sort();
-  let m = 0;
-  for (let q = 0; q < n; q++) if (m === 0 || values[q] !== values[m - 1]) values[m++] = values[q];
-  return m;
+/** A wedge value checked as code_wedges checks it: on its grid, [0, qMax]. */
+function onGrid(value, qMax) {
+  if (!(value >= 0 && value <= qMax)) fail("split frame: a wedge value leaves its grid");
+  return value;
 }
 
-/** Index of x in sorted values[0..n), or -1. */
-function findSorted(values, n, x) {
-  let lo = 0;
-  let hi = n;
-  while (lo < hi) {
-    const mid = (lo + hi) >> 1;
-    if (values[mid] < x) lo = mid + 1;
-    else hi = mid;
-  }
-  return lo < n && values[lo] === x ? lo : -1;
-}
-
-/** v's corners numbered below `below`, ascending: [array, count] (scratch sc.mine). Adds
- * the corners it reads, all v's, to sc.reads (the frame's wedge work). */
+/** v's corners numbered below `below`, ascending, into sc.mine; their count. Adds the
+ * corners it reads, all v's, to sc.reads (the frame's wedge work). */
 function sortedCorners(state, v, below, sc) {
   const count = state.cornersOf(v);
   const { list, listAt } = state;
-  sc.mine = grow(sc.mine ?? new Int32Array(16), count);
+  sc.mine = grow(sc.mine, count);
   let n = 0;
   for (let i = 0; i < count; i++) if (list[listAt + i] < below) sc.mine[n++] = list[listAt + i];
-  sc.mine.subarray(0, n).sort();
+  sortPrefix(sc.mine, n);
   sc.reads += count;
-  return [sc.mine, n];
+  return n;
 }
 
 /** 2 if the face at `f` (3 * face) holds a preferred vertex, 1 if it holds u or w. */
@@ -593,9 +602,9 @@ function predictNewCorner(state, cw, c, s, t, old, nc, sc) {
       }
     }
   }
-  const [mine, nMine] = sortedCorners(state, v, c, sc);
+  const nMine = sortedCorners(state, v, c, sc);
   for (let q = 0; q < nMine; q++) {
-    const corner = mine[q];
+    const corner = sc.mine[q];
     if (first < 0) first = cw[corner];
     const score = faceScore(faces, corner - (corner % 3), u, w, preferredA, preferredB);
     if (score > best) {
@@ -650,6 +659,8 @@ class RenderVertices {
       this.attributes[name] = { array: resize(old, width), width, column };
       column += width;
     });
+    this.attributeList = Object.values(this.attributes); // writeValues's, without a copy a call
+    if ("color" in this.attributes) this.linear ??= linearColours(grid, this.attributes.color.column);
     this.attributeArrays = Object.fromEntries(
       Object.entries(this.attributes).map(([name, entry]) => [name, entry.array]),
     );
@@ -693,13 +704,13 @@ class RenderVertices {
   writeValues(p) {
     const { grid, values, width } = this.wedges;
     const w = this.wedge[p];
-    for (const [name, { array, width: n, column }] of Object.entries(this.attributes)) {
+    const colour = this.attributes.color?.column ?? -1;
+    for (const { array, width: n, column } of this.attributeList) {
       for (let d = 0; d < n; d++) {
         const col = column + d;
-        let value = grid.origin[col] + values[w * width + col] * grid.step[col];
+        const q = values[w * width + col];
         // three.js shades in linear light; files give colours in sRGB (not alpha).
-        if (name === "color" && d < 3) value = srgbToLinear(value);
-        array[n * p + d] = value;
+        array[n * p + d] = column === colour && d < 3 ? this.linear[d](q) : grid.origin[col] + q * grid.step[col];
       }
     }
   }
@@ -735,4 +746,19 @@ class RenderVertices {
 
 function srgbToLinear(c) {
   return c <= 0.04045 ? c / 12.92 : ((c + 0.055) / 1.055) ** 2.4;
+}
+
+/** For each of the colour's three sRGB columns (from `column` of the wedge grid), the
+ * linear value of each grid integer, computed when first asked for (NaN until then):
+ * a table rather than a power a vertex. */
+function linearColours(grid, column) {
+  return [0, 1, 2].map((d) => {
+    const col = column + d;
+    const table = new Float32Array(grid.qMax[col] + 1).fill(Number.NaN);
+    return (q) => {
+      let value = table[q];
+      if (value !== value) value = table[q] = srgbToLinear(grid.origin[col] + q * grid.step[col]);
+      return value;
+    };
+  });
 }

@@ -298,8 +298,9 @@ export class WedgeLevels {
       const v = faces[c];
       let list = listed;
       let nList = nListed;
+      let nMine = -1; // v's corners below c, in sc.mine, once listed
       if (v !== s && v !== t) {
-        const nMine = sortedCorners(state, v, c, sc);
+        nMine = sortedCorners(state, v, c, sc);
         sc.list = grow(sc.list, nMine);
         for (let q = 0; q < nMine; q++) sc.list[q] = cw[sc.mine[q]];
         list = sc.list;
@@ -314,7 +315,7 @@ export class WedgeLevels {
         else if (stays[slot] && fresh < nNew) predicted = W + fresh;
         else predicted = old[z];
       } else {
-        predicted = predictNewCorner(state, cw, c, s, t, old, nc, sc);
+        predicted = predictNewCorner(state, cw, c, s, t, old, nc, sc, nMine);
         if (predicted < 0 && (v === s || v === t) && nListed > 0) {
           predicted = fresh < nNew ? W + fresh : listed[0];
         }
@@ -573,8 +574,10 @@ function faceScore(faces, f, u, w, preferredA, preferredB) {
   return score;
 }
 
-/** wedge_coding._predict_new_corner: the predicted wedge of corner c of a new face. */
-function predictNewCorner(state, cw, c, s, t, old, nc, sc) {
+/** wedge_coding._predict_new_corner: the predicted wedge of corner c of a new face.
+ * nMine >= 0: v's corners below c are in sc.mine already (they are read again, as the
+ * frame's wedge work counts them, but not listed again). */
+function predictNewCorner(state, cw, c, s, t, old, nc, sc, nMine) {
   const faces = state.faces;
   const f = c - (c % 3);
   const j = c % 3;
@@ -602,7 +605,8 @@ function predictNewCorner(state, cw, c, s, t, old, nc, sc) {
       }
     }
   }
-  const nMine = sortedCorners(state, v, c, sc);
+  if (nMine >= 0) sc.reads += state.cornersOf(v);
+  else nMine = sortedCorners(state, v, c, sc);
   for (let q = 0; q < nMine; q++) {
     const corner = sc.mine[q];
     if (first < 0) first = cw[corner];

@@ -1,18 +1,22 @@
 """Decoding speed: the progressive stream against Draco, side by side in one process.
 
-    python -m bench.decoder_speed [--meshes dragon.ply bunny.ply igea.ply] [--runs 5]
+    python -m bench.decoder_speed [--meshes dragon.ply bunny.ply igea.ply spot.obj
+                                            airplane_colored.ply] [--runs 5]
 
-Each mesh is built as the server builds an upload and exported as the server stores it
-(base level as msgpack, the stored split stream: ``qem_core.static_export.export_parts``).
-The same input (its referenced positions and faces) is encoded by Draco at 16 bits,
-compression level 7 (draco_encoder's default; DracoPy). Then:
+Each mesh is built as the server builds an upload (``qem_core.build_mesh``, which keeps
+texture coordinates and vertex colours: spot.obj's, airplane_colored.ply's) and exported
+as the server stores it (base level as msgpack, the stored split stream with its wedge
+keys: ``qem_core.static_export.export_parts``). The same input is encoded by Draco at 16
+bits, compression level 7 (draco_encoder's default; DracoPy): its referenced positions
+and faces, and its colours and texture coordinates, a point for each distinct position
+and coordinate pair (seams split, as a glTF file has them). Then:
 
 - **node**: ``bench/node/decoder_speed.mjs`` times the viewer's decoder
   (client/web/js/refine.js: base + whole stream to the full level, the buffers a renderer
   reads), its frames decoded in JavaScript and by the WebAssembly split decoder
   (js/refine.wasm, which the viewer's worker uses), and Draco's
-  WebAssembly decoder (three.js's copy, as DRACOLoader runs it, positions and indices
-  copied out), alternating, in one node process, after one untimed run each;
+  WebAssembly decoder (three.js's copy, as DRACOLoader runs it, indices and every
+  attribute copied out), alternating, in one node process, after one untimed run each;
 - **Python**: ``qem_core.stream.SplitStreamDecoder`` (from the base msgpack, every frame
   fed) against ``DracoPy.decode``, alternating, after one untimed run each.
 
@@ -34,19 +38,21 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from .meshes import compact_referenced
 from .report import format_ms, format_ratio, markdown_table
 from .runs import bench_parser, progress, record_run, run_header_lines
 
 __all__ = [
-    "main", "measure_decoder_speed", "mesh_cases", "node_version",
+    "draco_input", "main", "measure_decoder_speed", "mesh_cases", "node_version",
     "node_with_viewer_packages", "run_mesh_bench", "run_node_driver", "write_case",
 ]  # fmt: skip
 
 REPO = Path(__file__).resolve().parent.parent
 WEB = REPO / "client" / "web"
 NODE_DRIVER = Path(__file__).resolve().parent / "node" / "decoder_speed.mjs"
-DEFAULT_MESHES = ("dragon.ply", "bunny.ply", "igea.ply")
+DEFAULT_MESHES = ("dragon.ply", "bunny.ply", "igea.ply", "spot.obj", "airplane_colored.ply")
 DRACO_BITS = 16
 DRACO_LEVEL = 7
 TARGET_TIME_FACTOR = 1.5  # issue #32: decoding <= 1.5x Draco's wasm decoder
@@ -64,10 +70,11 @@ def write_case(mesh_path: Path, case: Path) -> tuple[Any, dict[str, Any]]:
     mesh = qem_core.load_mesh(mesh_path)
     pm = qem_core.build_mesh(mesh)
     parts = export_parts(pm, mesh_path.stem)
-    vertices, faces = compact_referenced(mesh.vertices, mesh.faces)
+    vertices, faces, attributes = draco_input(mesh)
     drc = DracoPy.encode(
-        vertices, faces, quantization_bits=DRACO_BITS, compression_level=DRACO_LEVEL
-    )
+        vertices, faces, quantization_bits=DRACO_BITS, compression_level=DRACO_LEVEL,
+        **attributes,
+    )  # fmt: skip
     case.mkdir(parents=True)
     (case / "base.msgpack").write_bytes(parts.base)
     (case / "stream.qsplits").write_bytes(parts.stream)
@@ -76,7 +83,31 @@ def write_case(mesh_path: Path, case: Path) -> tuple[Any, dict[str, Any]]:
     (case / "plan.json").write_text(json.dumps(plan))
     return pm, {**plan, "splits": pm.n_splits, "base_bytes": len(parts.base),
             "stream_bytes": len(parts.stream), "draco_bytes": len(drc),
-            "draco_vertices": len(vertices)}  # fmt: skip
+            "draco_vertices": len(vertices), "draco_attributes": 1 + len(attributes)}  # fmt: skip
+
+
+def draco_input(mesh: Any) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """The mesh as Draco takes it: points (its referenced vertices, split where a vertex
+    has several texture coordinates), faces, and DracoPy's per-point attributes
+    (``colors`` as 8 bits, ``tex_coord``) where the mesh has them."""
+    if mesh.corner_uvs is None:
+        vertices, faces = compact_referenced(mesh.vertices, mesh.faces)
+        point_vertex = np.unique(np.asarray(mesh.faces))
+        attributes = {}
+    else:
+        corners = np.asarray(mesh.faces, np.int64).reshape(-1)
+        uvs = np.asarray(mesh.corner_uvs, np.float32).reshape(-1, 2)
+        pairs = np.column_stack([corners, uvs.view(np.int32)])  # exact keys for the floats
+        _, first, inverse = np.unique(pairs, axis=0, return_index=True, return_inverse=True)
+        point_vertex = corners[first]
+        vertices = np.asarray(mesh.vertices, np.float64)[point_vertex]
+        faces = inverse.reshape(-1, 3).astype(np.int32)
+        attributes = {"tex_coord": uvs[first].astype(np.float64)}
+    colours = mesh.vertex_attributes.get("color")
+    if colours is not None:
+        rgb = np.asarray(colours, np.float64)[point_vertex, :3]
+        attributes["colors"] = np.clip(np.rint(255 * rgb), 0, 255).astype(np.uint8)
+    return vertices, faces, attributes
 
 
 def mesh_cases(
@@ -162,6 +193,8 @@ def measure_decoder_speed(mesh_dir: Path, meshes: list[str], runs: int) -> dict[
                 raise RuntimeError(f"{name}: the viewer's decoder stopped short of the full mesh")
         if in_node["wasm_result"]["decoder"] != "wasm":
             raise RuntimeError(f"{name}: refine.js did not decode in WebAssembly")
+        if in_node["draco_result"]["attributes"] != sizes["draco_attributes"]:
+            raise RuntimeError(f"{name}: Draco's decoder did not give every attribute")
         rows.append({
             "mesh": name, **sizes, "node": in_node, "python": in_python,
             "node_ratio": node_ms / draco_ms, "wasm_ratio": wasm_ms / draco_ms,

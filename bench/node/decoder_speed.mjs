@@ -32,6 +32,6 @@ for (let run = 0; run < runs; run++) {
   out.draco_ms.push(theirs.ms);
   out.progressive_result = { vertices: ours.vertices, faces: ours.faces };
   out.wasm_result = { vertices: inWasm.vertices, faces: inWasm.faces, decoder: inWasm.decoder };
-  out.draco_result = { vertices: theirs.vertices, faces: theirs.faces };
+  out.draco_result = { vertices: theirs.vertices, faces: theirs.faces, attributes: theirs.attributes };
 }
 console.log(JSON.stringify(out));

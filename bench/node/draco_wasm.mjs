@@ -3,9 +3,10 @@
 import { readFileSync } from "node:fs";
 import vm from "node:vm";
 
-/** A function decoding Draco bytes to positions and indices copied out of the wasm heap,
- * as DRACOLoader does; it returns { ms, vertices, faces }. `web` is client/web (its
- * node_modules hold three.js). */
+/** A function decoding Draco bytes to indices and every attribute (positions, and any
+ * colours or texture coordinates) copied out of the wasm heap, as DRACOLoader does; it
+ * returns { ms, vertices, faces, attributes }. `web` is client/web (its node_modules
+ * hold three.js). */
 export async function loadDracoDecoder(web) {
   // draco_wasm_wrapper.js is a classic script defining DracoDecoderModule.
   const dracoDir = `${web}/node_modules/three/examples/jsm/libs/draco`;
@@ -32,14 +33,18 @@ export async function loadDracoDecoder(web) {
     decoder.GetTrianglesUInt32Array(mesh, faces * 12, indexPtr);
     new Uint32Array(draco.HEAPU32.buffer, indexPtr, 3 * faces).slice();
     draco._free(indexPtr);
-    const attribute = decoder.GetAttribute(mesh, decoder.GetAttributeId(mesh, draco.POSITION));
-    const positionPtr = draco._malloc(points * 12);
-    decoder.GetAttributeDataArrayForAllPoints(mesh, attribute, draco.DT_FLOAT32, points * 12, positionPtr);
-    new Float32Array(draco.HEAPF32.buffer, positionPtr, 3 * points).slice();
-    draco._free(positionPtr);
+    const attributes = mesh.num_attributes();
+    for (let id = 0; id < attributes; id++) {
+      const attribute = decoder.GetAttribute(mesh, id);
+      const values = points * attribute.num_components();
+      const at = draco._malloc(values * 4);
+      decoder.GetAttributeDataArrayForAllPoints(mesh, attribute, draco.DT_FLOAT32, values * 4, at);
+      new Float32Array(draco.HEAPF32.buffer, at, values).slice();
+      draco._free(at);
+    }
     draco.destroy(mesh);
     draco.destroy(buffer);
     draco.destroy(decoder);
-    return { ms: performance.now() - start, vertices: points, faces };
+    return { ms: performance.now() - start, vertices: points, faces, attributes };
   };
 }

@@ -295,7 +295,7 @@ async function load(source) {
     abort,
     info: null,
     levels: null,
-    decoding: new WorkerDecoder(), // of its stream: started now, given the mesh once its base is here
+    decoding: null, // the WorkerDecoder of its stream: made at once, given the mesh with its base
     want: Infinity, // the slider's count; Infinity follows the stream to the full mesh
     baseBytes: 0,
     splitBytes: 0,
@@ -316,6 +316,7 @@ async function load(source) {
   $("controls").hidden = true;
   scene?.clear();
   try {
+    current.decoding = new WorkerDecoder(); // its scripts load while the base is fetched
     const { info, base, baseData, baseError } = await source.open(signal);
     current.info = info;
     current.baseBytes = baseData.length;
@@ -363,7 +364,7 @@ async function load(source) {
     scene.changed(); // now, not after a background redraw's wait
     updateStats();
   } catch (error) {
-    current.decoding.close(); // the mesh could not be opened: its worker is not needed
+    current.decoding?.close(); // whatever failed, its worker is done
     if (signal.aborted) return;
     current.streaming = false;
     current.failure = error.message;

@@ -766,7 +766,9 @@ export class ProgressiveLevels {
     this.received = this.nBase; // vertex count up to which splits are held
     // The received level, for decoding.
     if (!decoder) this.state = null;
-    else if (wasm !== null) this.state = new WasmSplits(wasm, base, nFull, fFull);
+    else if (wasm !== null) {
+      this.state = new WasmSplits(wasm, base, nFull, fFull, { cornersOf: SplitState.prototype.cornersOf });
+    }
     else this.state = new SplitState(base, nFull, fFull);
     this.contexts = null; // the range coder's, as the stream's last frame left them
     this.broken = null; // why a frame was refused half-way
@@ -779,7 +781,6 @@ export class ProgressiveLevels {
       // WedgeLevels decodes reading the module's state as it reads a SplitState's: the
       // same arrays (WasmSplits.stateView), and SplitState's own way to a vertex's list.
       const splits = this.state;
-      splits.stateView().cornersOf = SplitState.prototype.cornersOf; // the view is kept
       splits.onWedgeSplit = (i, s, t, nc, firstFace, face) =>
         this.wedges.decodeSplit(i, s, t, splits.stateView(), nc, firstFace, face);
     }

@@ -34,16 +34,17 @@ const OUT_OF_MEMORY = REFUSALS.indexOf("memory");
  * (`faces`, `fan`), so ProgressiveLevels reads the level it holds from them the same way.
  */
 export class WasmSplits {
-  constructor(module, base, nFull, fFull) {
+  /** `cornersOf`: SplitState's, which stateView() uses to find a vertex's list. */
+  constructor(module, base, nFull, fFull, { cornersOf } = {}) {
     // Each split of a mesh with wedges: onWedgeSplit(i, s, t, nc, firstFace, face), as
     // refine.js calls WedgeLevels.decodeSplit (ProgressiveLevels sets it).
     this.onWedgeSplit = null;
-    const env = { wedge_split: (...split) => this.onWedgeSplit(...split) };
-    this.exports = new WebAssembly.Instance(module, { env }).exports;
+    const wedgeSplit = (i, s, t, nc, firstFace, face) => this.onWedgeSplit(i, s, t, nc, firstFace, face);
+    this.exports = new WebAssembly.Instance(module, { env: { wedge_split: wedgeSplit } }).exports;
     this.nBase = base.nVertices;
     this.nFull = nFull;
     this.fFull = fFull;
-    this.view = { buffer: null };
+    this.view = { buffer: null, cornersOf };
     const w = this.exports;
     if (!w.qem_init(base.nVertices, nFull, fFull, base.nFaces, base.bits, base.wedges ? 1 : 0)) {
       fail("the split decoder has no room for this mesh (WebAssembly memory)");
@@ -70,18 +71,22 @@ export class WasmSplits {
     return this.ints(this.exports.qem_faces(), 3 * this.fFull);
   }
 
-  /** Each vertex's block (count, spill offset, grid position, corners), as SplitState.fan. */
+  /** Each vertex's block (count, spill offset, grid position, stamp, corners), as
+   * SplitState.fan. */
   get fan() {
     return this.ints(this.exports.qem_fan(), this.exports.qem_fan_ints());
   }
 
   /** The arrays a SplitState holds, as views of the module's memory (`faces`, `fan`,
    * `spill`, and `cs`, the sorted corners of the split being decoded), made anew only
-   * when the memory grew or a buffer moved. */
+   * when the memory grew or a buffer moved, with SplitState's `cornersOf`: the object
+   * WedgeLevels.decodeSplit reads as a SplitState. */
   stateView() {
     const w = this.exports;
     const view = this.view;
-    const [buffer, cs, spill] = [w.memory.buffer, w.qem_cs(), w.qem_spill()];
+    const buffer = w.memory.buffer;
+    const cs = w.qem_cs();
+    const spill = w.qem_spill();
     if (view.buffer === buffer && view.csAt === cs && view.spillAt === spill) return view;
     Object.assign(view, { buffer, csAt: cs, spillAt: spill });
     view.faces = this.faces;

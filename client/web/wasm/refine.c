@@ -27,6 +27,7 @@ static void *take(u32 bytes) {
   if (!heap_top) heap_top = (u32)&__heap_base;
   heap_top = (heap_top + 15u) & ~15u;
   u32 at = heap_top;
+  if (bytes > 0xffffffffu - at) return 0; // past 4 GiB: no room
   u32 end = at + bytes;
   u32 have = (u32)__builtin_wasm_memory_size(0) * 65536u;
   if (end > have) {
@@ -150,7 +151,8 @@ static i64 uniform(i32 base, i64 n) {
 #define LAPLACE_BITS 20
 #define FAN_BLOCK 16
 #define FAN_Q 2 // where a block holds its vertex's grid position (3 int32s)
-#define STAMP 3 // after the position: the last set of neighbours the vertex was put in (FAN_STAMP)
+#define FAN_STAMP 5 // then the last set of neighbours the vertex was put in (refine.js's FAN_STAMP)
+#define STAMP (FAN_STAMP - FAN_Q) // the stamp, from the position
 #define FAN_CORNERS 6
 #define FAN_INLINE (FAN_BLOCK - FAN_CORNERS)
 #define FRAME_WORK_LIMIT (1 << 21)
@@ -217,13 +219,13 @@ static inline i64 decode_value(i32 magnitude_slots, i32 sign_slot) {
 static i32 n_base, n_full, f_full, qmax;
 static i32 *faces;   // 3 f_full: the received level's faces
 static i32 *fan;     // FAN_BLOCK n_full: count, spill offset, position, stamp, corners
-// A vertex's position and stamp (a pointer into its block). A set of distinct neighbours
-// is made by stamping them, in place of a search of the set for each: the stamp sits
-// beside the position that the set's user reads next.
-static inline i32 *at(i32 v) { return fan + FAN_BLOCK * v + FAN_Q; }
+// A vertex's grid position, and after it its stamp (a pointer into its block). A set of
+// distinct neighbours is made by stamping them, in place of a search of the set for
+// each: the stamp sits beside the position that the set's user reads next.
+static inline i32 *q_of(i32 v) { return fan + FAN_BLOCK * v + FAN_Q; }
 static i32 stamps;
 static i32 new_stamp(void) {
-  if (stamps == 0x7fffffff) { for (i32 v = 0; v < n_full; v++) at(v)[STAMP] = 0; stamps = 0; }
+  if (stamps == 0x7fffffff) { for (i32 v = 0; v < n_full; v++) q_of(v)[STAMP] = 0; stamps = 0; }
   return ++stamps;
 }
 static i32 *spill; static u32 spill_len, spill_end;
@@ -328,8 +330,8 @@ static void gather(i32 s) {
   i32 stamp = new_stamp(), m = 0;
   for (i32 q = 0; q < n; q++) {
     i32 a = after_[q], b = before_[q];
-    if (a != s && at(a)[STAMP] != stamp) { at(a)[STAMP] = stamp; nb[m++] = a; }
-    if (b != s && at(b)[STAMP] != stamp) { at(b)[STAMP] = stamp; nb[m++] = b; }
+    if (a != s && q_of(a)[STAMP] != stamp) { q_of(a)[STAMP] = stamp; nb[m++] = a; }
+    if (b != s && q_of(b)[STAMP] != stamp) { q_of(b)[STAMP] = stamp; nb[m++] = b; }
   }
   sort_prefix_i32(nb, m);
   nn = m;
@@ -425,7 +427,7 @@ static i32 ring_sum(i32 v, i32 other, i64 *total) {
     i32 c = list[i], f = c - c % 3;
     for (int j = 0; j < 3; j++) {
       i32 w = faces[f + j];
-      i32 *p = at(w);
+      i32 *p = q_of(w);
       if (w == v || w == other || p[STAMP] == stamp) continue;
       p[STAMP] = stamp;
       count++;
@@ -519,7 +521,7 @@ static void decode_positions(i32 s, i32 t, const Shape *shape, i64 *edge, i64 *m
   if (bit(PLACE_SLOTS)) placement = 1 + bit(PLACE_SLOTS + 1);
   if (placement == 0) decode_mid(shape, edge, mid);
   for (int axis = 0; axis < 3; axis++) {
-    i64 old = at(s)[axis];
+    i64 old = q_of(s)[axis];
     i64 e = edge[axis];
     if (placement == 1) mid[axis] = old;
     else if (placement == 2) mid[axis] = old - e;
@@ -548,6 +550,11 @@ i32 qem_init(i32 nb_, i32 nfull, i32 ffull, i32 fbase, i32 bits, i32 wedges) {
   n_base = nb_; n_full = nfull; f_full = ffull; f_base_count = fbase; qmax = (i32)((1u << bits) - 1u);
   with_wedges = wedges;
   error = 0;
+  // The largest buffers past 2 GiB cannot be had in wasm32's memory, and their sizes
+  // would wrap as 32-bit products: no room.
+  if (n_base < 0 || n_full < n_base || f_full < fbase || fbase < 0 ||
+      (u64)n_full * 4 * FAN_BLOCK >= (1ull << 31) || (u64)f_full * 12 >= (1ull << 31))
+    return 0;
   faces = take(12u * f_full); fan = take(4u * FAN_BLOCK * n_full);
   spill_len = 1024; spill = take(4 * spill_len); spill_end = 1;
   scratch = 16; cs = take(64); after_ = take(64); before_ = take(64); nb = take(128); mark = take(16);
@@ -569,7 +576,7 @@ i32 qem_init(i32 nb_, i32 nfull, i32 ffull, i32 fbase, i32 bits, i32 wedges) {
 i32 *qem_base_positions(void) { return base_q; }
 i32 *qem_base_faces(void) { return base_faces; }
 i32 qem_link_base(void) {
-  for (i32 v = 0; v < n_base; v++) for (int d = 0; d < 3; d++) at(v)[d] = base_q[3 * v + d];
+  for (i32 v = 0; v < n_base; v++) for (int d = 0; d < 3; d++) q_of(v)[d] = base_q[3 * v + d];
   for (i32 c = 0; c < 3 * f_base_count; c++) {
     i32 v = base_faces[c];
     if (v < 0 || v >= n_base) return E_BASE;
@@ -724,10 +731,10 @@ i32 qem_decode(const u8 *coded, u32 coded_len, i32 n_from, i32 k, i32 faces_from
     decode_positions(s, t, &shape, edge, mid);
     if (error) return error;
     for (int axis = 0; axis < 3; axis++) {
-      i32 old = at(s)[axis];
+      i32 old = q_of(s)[axis];
       i32 a = (i32)mid[axis];
-      at(s)[axis] = a;
-      at(t)[axis] = a + (i32)edge[axis];
+      q_of(s)[axis] = a;
+      q_of(t)[axis] = a + (i32)edge[axis];
       deltas_out[6 * (first + i) + axis] = a - old;
       deltas_out[6 * (first + i) + 3 + axis] = a + (i32)edge[axis] - old;
     }

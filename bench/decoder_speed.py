@@ -40,6 +40,8 @@ from typing import Any
 
 import numpy as np
 
+from qem_core.codecs._corners import split_at_seams
+
 from .meshes import compact_referenced
 from .report import format_ms, format_ratio, markdown_table
 from .runs import bench_parser, progress, record_run, run_header_lines
@@ -94,15 +96,15 @@ def draco_input(mesh: Any) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray
         vertices, faces = compact_referenced(mesh.vertices, mesh.faces)
         point_vertex = np.unique(np.asarray(mesh.faces))
         attributes = {}
-    else:
-        corners = np.asarray(mesh.faces, np.int64).reshape(-1)
-        uvs = np.asarray(mesh.corner_uvs, np.float32).reshape(-1, 2)
-        pairs = np.column_stack([corners, uvs.view(np.int32)])  # exact keys for the floats
-        _, first, inverse = np.unique(pairs, axis=0, return_index=True, return_inverse=True)
-        point_vertex = corners[first]
+    else:  # the GLB writer's split, of the referenced vertices
+        used = np.unique(np.asarray(mesh.faces))
+        remap = np.zeros(len(mesh.vertices), np.int64)
+        remap[used] = np.arange(used.size)
+        source, uvs, faces = split_at_seams(remap[mesh.faces], mesh.corner_uvs, used.size)
+        point_vertex = used[source]
         vertices = np.asarray(mesh.vertices, np.float64)[point_vertex]
-        faces = inverse.reshape(-1, 3).astype(np.int32)
-        attributes = {"tex_coord": uvs[first].astype(np.float64)}
+        faces = faces.astype(np.int32)
+        attributes = {"tex_coord": uvs.astype(np.float64)}
     colours = mesh.vertex_attributes.get("color")
     if colours is not None:
         rgb = np.asarray(colours, np.float64)[point_vertex, :3]

@@ -765,11 +765,13 @@ export class ProgressiveLevels {
     this.relabelFaces = new Uint32Array(Math.max(16, 2 * nSplits)); // grows if needed
     this.received = this.nBase; // vertex count up to which splits are held
     // The received level, for decoding.
-    if (!decoder) this.state = null;
-    else if (wasm !== null) {
+    if (!decoder) {
+      this.state = null;
+    } else if (wasm !== null) {
       this.state = new WasmSplits(wasm, base, nFull, fFull, { cornersOf: SplitState.prototype.cornersOf });
+    } else {
+      this.state = new SplitState(base, nFull, fFull);
     }
-    else this.state = new SplitState(base, nFull, fFull);
     this.contexts = null; // the range coder's, as the stream's last frame left them
     this.broken = null; // why a frame was refused half-way
     this.level = this.nBase; // vertex count the buffers hold now

@@ -18,6 +18,7 @@ from .problems import Problem
 __all__ = ["byte_range", "if_range_holds"]
 
 _RANGE = re.compile(r"^\s*bytes\s*=\s*(\d*)\s*-\s*(\d*)\s*$", re.IGNORECASE)
+_BYTES_UNIT = re.compile(r"^\s*bytes\s*=", re.IGNORECASE)
 _MAX_DIGITS = 19  # a declared position past 2^63 is malformed, not a huge allocation
 
 
@@ -30,8 +31,9 @@ def if_range_holds(if_range: str | None, etag: str) -> bool:
 def byte_range(header: str | None, size: int) -> tuple[int, int] | None:
     """The bytes ``[start, stop)`` a Range header asks of ``size`` bytes, or None for the
     whole (no header). Problem 400 for a malformed or multiple range, 416 for one that
-    starts at or past ``size`` (or a suffix of 0 bytes)."""
-    if header is None:
+    starts at or past ``size`` (or a suffix of 0 bytes). A header of another unit than
+    bytes (or of none, as ``null``) is ignored, as RFC 9110 (14.2) requires: None."""
+    if header is None or not _BYTES_UNIT.match(header):
         return None
     match = _RANGE.match(header)
     if match is None or len(match[1]) > _MAX_DIGITS or len(match[2]) > _MAX_DIGITS:

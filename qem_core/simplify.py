@@ -61,6 +61,7 @@ from ._kernels.scale import ldexp_into
 from ._kernels.setup import fill_border_quadrics, fill_heap, sum_quadrics
 from ._kernels.sweeps import split_dependencies, sweep_order, window_ends
 from .attributes import Wedges, check_options_for_wedges, make_wedges
+from .lattice import place_on_tangent_lattice
 from .mesh import Mesh
 from .options import ERROR_MODE_CODES, WEIGHTING_AREA_EXPONENTS, WEIGHTING_CODES, BuildOptions
 from .page_advice import without_huge_page_advice
@@ -637,6 +638,8 @@ def _build(vertices, faces, options: BuildOptions, progress: ProgressCallback | 
     pm.vertex_map = np.where(
         prepared.vertex_map >= 0, level_of_slot[np.maximum(prepared.vertex_map, 0)], -1
     ).astype(np.int32)
+    if options.tangent_lattice and not options.preserve_volume:
+        place_on_tangent_lattice(pm)
     if progress is not None:
         progress(1.0)
     return pm

@@ -95,7 +95,7 @@ __all__ = [
 ]
 
 MEDIA_TYPE = "application/x-qem-splits"
-STREAM_VERSION = 5
+STREAM_VERSION = 6
 # Frames grow from FIRST_FRAME_SPLITS to SPLITS_PER_FRAME splits (doubling), so that a
 # viewer refines early in the stream: it gets a first level after a small frame.
 FIRST_FRAME_SPLITS = 512

@@ -1,4 +1,4 @@
-"""Split-stream (version 4) coding kernels: connectivity relative to the split vertex's
+"""Split-stream (version 6) coding kernels: connectivity relative to the split vertex's
 neighbourhood, positions relative to the split vertex's old position in a frame fitted
 to its ring, the symbols range-coded (``code_splits`` / ``decode_connectivity``,
 contexts below the constants). docs/formats.md, section 2, gives every step.
@@ -33,7 +33,8 @@ index (``cs``) and the distinct other vertices of s's faces sorted (``nb``):
 - positions (``_ring_shape``, ``_span_axes``, ``_mid_axes``): the edge e = t - s_new
   against the two rings' centroids, its axis nearest the ring's normal against the plane
   of the ring; whether s or t stayed at s's old position; else the midpoint against the
-  old position in the frame (e, normal, e x normal).
+  old position in the frame (e, normal, e x normal), its two tangent values in units of
+  the lattice step when the build put it on the tangent lattice.
 """
 
 import numba
@@ -117,7 +118,20 @@ _MID1_SLOTS = _MID_SLOTS + _ROWS * _IS  # position_mid along e: row by the edge'
 _MID2_SLOTS = _MID1_SLOTS + _ROWS * _IS  # second and third: row by the edge's length
 _MID3_SLOTS = _MID2_SLOTS + _ROWS * _IS
 _MID_SIGN_SLOTS = _MID3_SLOTS + _ROWS * _IS  # signs of the first two, by the curvature
-CONTEXT_SLOTS = _MID_SIGN_SLOTS + 6
+_LATTICE_SLOT = _MID_SIGN_SLOTS + 6  # "the mid's tangent values on the lattice?"
+_LATTICE1_SLOTS = _LATTICE_SLOT + 1  # position_mid on the lattice, first value
+_LATTICE3_SLOTS = _LATTICE1_SLOTS + _IS  # and third (sign in its slot 132)
+CONTEXT_SLOTS = _LATTICE3_SLOTS + _IS
+
+# The tangent lattice (stream version 6). A split's mid, coded in the frame of the edge
+# and the ring's normal, has two values that move the new position along the surface
+# (along the edge, and across it in the ring's plane) and one that moves it off the
+# surface. The build places each vertex that splits again (qem_core.lattice) so that its
+# two tangent values are multiples of a step of about a sixteenth of the edge it splits
+# into: they then cost a few bits where the exact optimum's cost about log2 of the
+# edge's length each, and the vertex stays as near its quadric optimum as a move along
+# the surface allows. A decision says which splits do (any other split is coded exactly).
+LATTICE_BITS = 4
 
 # Field flags of ``code_splits`` (which fields to code: all for a frame, one at a time
 # to measure a field; each field has contexts of its own, so its bytes do not depend on
@@ -137,9 +151,12 @@ ALL_FIELDS = 255
 SPLIT_CONTEXT = 9
 _NN, _NC, _SPREAD, _NORMAL, _BULGE = 0, 1, 2, 5, 8
 # Per split, the position symbols in coding order: three of position_span, the
-# placement, three of position_mid (coded only when the placement is 0).
-POSITION_SYMBOLS = 7
+# placement, three of position_mid (coded only when the placement is 0), and whether
+# the mid is on the tangent lattice (-1 when that decision is not coded), coded before
+# the mid's values.
+POSITION_SYMBOLS = 8
 _PLACEMENT = 3
+_ON_LATTICE = 7
 
 
 @_kernel
@@ -665,11 +682,20 @@ def _mid_frame(context, edge, axes, work):
 
 
 @_kernel
-def _mid_slots(context, framed, axes, n_known, edge, binormal, reduced, mid, slots):
+def lattice_step(edge):
+    """The tangent lattice's step for a split of edge e: 2^(bitlen(max |e_d|) -
+    LATTICE_BITS), at least 1 (then there is no lattice)."""
+    big = max(abs(edge[0]), abs(edge[1]), abs(edge[2]))
+    return 1 << max(0, rc.bit_length(big) - LATTICE_BITS)
+
+
+@_kernel
+def _mid_slots(context, framed, axes, n_known, edge, binormal, reduced, mid, slots, lattice):
     """Context slots of the n_known-th mid value into slots, and the value it is coded
     against: in the frame, the second axis against the first scaled along e (``reduced``
     is e shifted to _NORMAL_BITS bits), the third against the plane of e and the normal
-    (mid holds the values already known)."""
+    (mid holds the values already known). With ``lattice`` the first and third values
+    are coded in units of the lattice step, in blocks of their own."""
     d = axes[n_known]
     if not framed:
         slots[0] = _MID_SLOTS + min(rc.bit_length(edge[d]), _ROWS - 1) * _IS
@@ -681,6 +707,8 @@ def _mid_slots(context, framed, axes, n_known, edge, binormal, reduced, mid, slo
     length = min(rc.bit_length(abs(edge[0]) + abs(edge[1]) + abs(edge[2])), _ROWS - 1)
     if n_known == 0:
         slots[0] = _MID1_SLOTS + min(rc.bit_length(edge[a]), _ROWS - 1) * _IS
+        if lattice:
+            slots[0] = _LATTICE1_SLOTS
         slots[1] = _MID_SIGN_SLOTS + _sign(bulge * normal[a])
         return 0
     if n_known == 1:
@@ -690,8 +718,16 @@ def _mid_slots(context, framed, axes, n_known, edge, binormal, reduced, mid, slo
         if reduced[a] == 0:
             return 0
         return _round_div(mid[a] * reduced[b], reduced[a])
-    slots[0] = _MID3_SLOTS + length * _IS
+    slots[0] = _LATTICE3_SLOTS if lattice else _MID3_SLOTS + length * _IS
     slots[1] = slots[0] + _IS - 1
+    return mid_third(axes, binormal, mid)
+
+
+@_kernel
+def mid_third(axes, binormal, mid):
+    """What the mid's third value is coded against: the plane of e and the normal
+    (binormal is e x normal shifted to _NORMAL_BITS bits), given the first two."""
+    a, b, d = axes[0], axes[1], axes[2]
     return _round_div(-(binormal[a] * mid[a] + binormal[b] * mid[b]), binormal[d])
 
 
@@ -1042,14 +1078,25 @@ def _encode_splits(
         for d in range(3):
             work[d] = edge[d]
         _shift_to(work, _NORMAL_BITS)
+        step = lattice_step(edge)
+        lattice = placement == 0 and framed and step > 1
+        positions[i, _ON_LATTICE] = -1
+        if lattice:
+            # On the lattice when both tangent values are multiples of the step.
+            third = mid[axes[2]] - mid_third(axes, binormal, mid)
+            lattice = mid[axes[0]] % step == 0 and third % step == 0
+            positions[i, _ON_LATTICE] = 1 if lattice else 0
         for n_known in range(3):
             at = _PLACEMENT + 1 + n_known
             if placement:
                 positions[i, at] = 0
                 position_slots[i, at, 0] = -1
                 continue
-            against = _mid_slots(context, framed, axes, n_known, edge, binormal, work, mid, slots)
-            positions[i, at] = mid[axes[n_known]] - against
+            against = _mid_slots(
+                context, framed, axes, n_known, edge, binormal, work, mid, slots, lattice
+            )
+            value = mid[axes[n_known]] - against
+            positions[i, at] = value // step if lattice and n_known != 1 else value
             position_slots[i, at, 0] = slots[0]
             position_slots[i, at, 1] = slots[1]
         for d in range(3):
@@ -1182,7 +1229,9 @@ def code_splits(
             if placement:
                 rc.encode_bit(enc, out, probs, _PLACE_SLOTS + 1, placement == 2)
             else:
-                for at in range(_PLACEMENT + 1, POSITION_SYMBOLS):
+                if positions[i, _ON_LATTICE] >= 0:
+                    rc.encode_bit(enc, out, probs, _LATTICE_SLOT, positions[i, _ON_LATTICE])
+                for at in range(_PLACEMENT + 1, _PLACEMENT + 4):
                     bad |= _code_value(enc, out, probs, positions[i, at], position_slots[i, at])
     return bad
 
@@ -1626,11 +1675,24 @@ def decode_connectivity(
             for d in range(3):
                 work[d] = edge[d]
             _shift_to(work, _NORMAL_BITS)
+            step = lattice_step(edge)
+            lattice = False
+            if framed and step > 1:
+                lattice = rc.decode_bit(dec, data, probs, _LATTICE_SLOT) == 1
             for n_known in range(3):
                 against = _mid_slots(
-                    context, framed, axes, n_known, edge, binormal, work, mid, slots
+                    context, framed, axes, n_known, edge, binormal, work, mid, slots, lattice
                 )
-                mid[axes[n_known]] = _decode_value(dec, data, probs, slots) + against
+                value = _decode_value(dec, data, probs, slots)
+                if lattice and n_known != 1:
+                    # A mid within the grid has tangent values of a few grid widths;
+                    # refusing larger ones keeps value * step below 2^53.
+                    if abs(value) > 8 * (q_max + 1):
+                        status = BAD_POSITION
+                    value *= step
+                mid[axes[n_known]] = value + against
+            if status:
+                break
         for d in range(3):
             old = quantised[s, d]
             e = edge[d]

@@ -300,12 +300,13 @@ def _flip_middle(coded: bytes) -> bytes:
 
 @pytest.mark.parametrize("change", [
     _with(format="qem-mesh-msgpack"),
-    _with(version=6),
+    _with(version=7),
+    _with(version=5),  # version 5 frames (no tangent lattice): not read
     _with(version=4),  # version 4 frames (each split's s before its other fields): not read
     _with(version=3),  # version 3 frames (s coded as an index, not a gap) are no longer read
     _with(version=2),  # version 2 frames (deflated byte planes) are no longer read
     _with(version=1),
-    _with(version="5"),
+    _with(version="6"),
     _without("splits"),
     _without("grid"),
     _with(n_to=10**9),

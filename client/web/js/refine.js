@@ -33,7 +33,7 @@ import { decodeBaseWedges, decodeWedgeFields, WedgeLevels } from "./wedges.js";
 
 export { FrameCutter, WireFormatError };
 
-export const STREAM_VERSION = 5;
+export const STREAM_VERSION = 6;
 export const MESH_VERSION = 1;
 const EXPLICIT_FACE = 6; // face codes 0-2: (s, t, x) rotated; 3-5: (t, s, x); 6: explicit
 const ESCAPE = 255; // a third corner given as a back-distance, not as a neighbour index
@@ -83,7 +83,12 @@ const MID1_SLOTS = MID_SLOTS + ROWS * IS;
 const MID2_SLOTS = MID1_SLOTS + ROWS * IS;
 const MID3_SLOTS = MID2_SLOTS + ROWS * IS;
 const MID_SIGN_SLOTS = MID3_SLOTS + ROWS * IS;
-export const CONTEXT_SLOTS = MID_SIGN_SLOTS + 6;
+const LATTICE_SLOT = MID_SIGN_SLOTS + 6; // the mid's tangent values on the lattice?
+const LATTICE1_SLOTS = LATTICE_SLOT + 1;
+const LATTICE3_SLOTS = LATTICE1_SLOTS + IS;
+export const CONTEXT_SLOTS = LATTICE3_SLOTS + IS;
+// The tangent lattice's step is 2^(bitlen(max |e_d|) - LATTICE_BITS) (stream_coding.lattice_step).
+const LATTICE_BITS = 4;
 
 // 2 ** n for the shifts below: `2 ** variable` calls the C library's pow (6 % of a
 // dragon decode).
@@ -1090,17 +1095,29 @@ export class ProgressiveLevels {
     for (let d = 0; d < 3; d++) reduced[d] = edge[d];
     shiftTo(reduced, NORMAL_BITS);
     const length = Math.min(bitLength(Math.abs(edge[0]) + Math.abs(edge[1]) + Math.abs(edge[2])), ROWS - 1);
-    slots[0] = MID1_SLOTS + Math.min(bitLength(edge[a]), ROWS - 1) * IS;
+    const big = Math.max(Math.abs(edge[0]), Math.abs(edge[1]), Math.abs(edge[2]));
+    const step = POW2[Math.max(0, bitLength(big) - LATTICE_BITS)];
+    const lattice = step > 1 && coder.bit(probs, LATTICE_SLOT) === 1;
+    slots[0] = lattice ? LATTICE1_SLOTS : MID1_SLOTS + Math.min(bitLength(edge[a]), ROWS - 1) * IS;
     slots[1] = MID_SIGN_SLOTS + signContext(bulge * normal[a]);
-    mid[a] = decodeValue(coder, probs, slots);
+    mid[a] = lattice ? this.onLattice(decodeValue(coder, probs, slots), step) : decodeValue(coder, probs, slots);
     slots[0] = MID2_SLOTS + length * IS;
     const cross = normal[b] * reduced[a] - normal[a] * reduced[b];
     slots[1] = MID_SIGN_SLOTS + 3 + signContext(bulge * Math.sign(cross) * Math.sign(reduced[a]));
     const along = reduced[a] === 0 ? 0 : roundDiv(mid[a] * reduced[b], reduced[a]);
     mid[b] = decodeValue(coder, probs, slots) + along;
-    slots[0] = MID3_SLOTS + length * IS;
+    slots[0] = lattice ? LATTICE3_SLOTS : MID3_SLOTS + length * IS;
     slots[1] = slots[0] + IS - 1;
-    mid[k] = decodeValue(coder, probs, slots) + roundDiv(-(binormal[a] * mid[a] + binormal[b] * mid[b]), binormal[k]);
+    const third = lattice ? this.onLattice(decodeValue(coder, probs, slots), step) : decodeValue(coder, probs, slots);
+    mid[k] = third + roundDiv(-(binormal[a] * mid[a] + binormal[b] * mid[b]), binormal[k]);
+  }
+
+  /** A tangent value coded in units of the lattice step, in grid units. A mid within
+   * the grid has values of a few grid lengths; larger ones are refused, which keeps the
+   * product below 2^53 (decode_connectivity refuses the same). */
+  onLattice(value, step) {
+    if (Math.abs(value) > 8 * POW2[this.bits]) fail(SPLITS_REFUSED.grid());
+    return value * step;
   }
 
   checkGrid(frame) {

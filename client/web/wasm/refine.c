@@ -1,4 +1,4 @@
-// The split decoder of refine.js (stream version 5; docs/formats.md section 2) in C for
+// The split decoder of refine.js (stream version 6; docs/formats.md section 2) in C for
 // WebAssembly: SplitState and ProgressiveLevels.decodeSplits step for step, the same
 // integers out, in about half the time (docs/performance.md). Built by client/build_wasm.py
 // (clang for wasm32 from the ziglang package) into client/web/js/refine.wasm; driven by
@@ -178,7 +178,11 @@ static i64 uniform(i32 base, i64 n) {
 #define MID2_SLOTS (MID1_SLOTS + ROWS * IS)
 #define MID3_SLOTS (MID2_SLOTS + ROWS * IS)
 #define MID_SIGN_SLOTS (MID3_SLOTS + ROWS * IS)
-#define CONTEXT_SLOTS (MID_SIGN_SLOTS + 6)
+#define LATTICE_SLOT (MID_SIGN_SLOTS + 6)
+#define LATTICE1_SLOTS (LATTICE_SLOT + 1)
+#define LATTICE3_SLOTS (LATTICE1_SLOTS + IS)
+#define CONTEXT_SLOTS (LATTICE3_SLOTS + IS)
+#define LATTICE_BITS 4
 
 // ---- arithmetic helpers ----------------------------------------------------------------
 static inline i64 iabs(i64 v) { return v < 0 ? -v : v; }
@@ -459,6 +463,12 @@ static i32 relabel(i32 f, i32 s, i32 t) {
 }
 
 // ---- positions (decodePositions, decodeMid) ---------------------------------------------
+// A tangent value coded in units of the lattice step, in grid units; one past a few grid
+// lengths is refused, as decode_connectivity refuses it.
+static i64 on_lattice(i64 value, i64 step) {
+  if (iabs(value) > ((i64)8 << (bit_length(qmax)))) FAIL_V(E_GRID, 0);
+  return value * step;
+}
 static void decode_mid(const Shape *shape, const i64 *edge, i64 *mid) {
   const i64 *normal = shape->normal;
   i64 binormal[3] = {
@@ -484,13 +494,24 @@ static void decode_mid(const Shape *shape, const i64 *edge, i64 *mid) {
   i32 length = bit_length(iabs(edge[0]) + iabs(edge[1]) + iabs(edge[2]));
   if (length > ROWS - 1) length = ROWS - 1;
   i32 row = bit_length(edge[a]); if (row > ROWS - 1) row = ROWS - 1;
-  mid[a] = decode_value(MID1_SLOTS + row * IS, MID_SIGN_SLOTS + sign_context(shape->bulge * normal[a]));
+  i64 big = iabs(edge[0]);
+  if (iabs(edge[1]) > big) big = iabs(edge[1]);
+  if (iabs(edge[2]) > big) big = iabs(edge[2]);
+  i32 shift = bit_length(big) - LATTICE_BITS;
+  i64 step = shift > 0 ? (i64)1 << shift : 1;
+  i32 lattice = step > 1 && bit(LATTICE_SLOT);
+  i32 first_slots = lattice ? LATTICE1_SLOTS : MID1_SLOTS + row * IS;
+  mid[a] = decode_value(first_slots, MID_SIGN_SLOTS + sign_context(shape->bulge * normal[a]));
+  if (lattice) mid[a] = on_lattice(mid[a], step);
+  if (error) return;
   i64 cross = normal[b] * reduced[a] - normal[a] * reduced[b];
   i32 sign_slot = MID_SIGN_SLOTS + 3 + sign_context(shape->bulge * sgn(cross) * sgn(reduced[a]));
   i64 along = reduced[a] == 0 ? 0 : round_div(mid[a] * reduced[b], reduced[a]);
   mid[b] = decode_value(MID2_SLOTS + length * IS, sign_slot) + along;
-  i32 slots = MID3_SLOTS + length * IS;
-  mid[k] = decode_value(slots, slots + IS - 1) + round_div(-(binormal[a] * mid[a] + binormal[b] * mid[b]), binormal[k]);
+  i32 slots = lattice ? LATTICE3_SLOTS : MID3_SLOTS + length * IS;
+  i64 third = decode_value(slots, slots + IS - 1);
+  if (lattice) third = on_lattice(third, step);
+  mid[k] = third + round_div(-(binormal[a] * mid[a] + binormal[b] * mid[b]), binormal[k]);
 }
 static void decode_positions(i32 s, i32 t, const Shape *shape, i64 *edge, i64 *mid) {
   i64 prediction[3];
@@ -520,6 +541,7 @@ static void decode_positions(i32 s, i32 t, const Shape *shape, i64 *edge, i64 *m
   i32 placement = 0;
   if (bit(PLACE_SLOTS)) placement = 1 + bit(PLACE_SLOTS + 1);
   if (placement == 0) decode_mid(shape, edge, mid);
+  if (error) return;
   for (int axis = 0; axis < 3; axis++) {
     i64 old = q_of(s)[axis];
     i64 e = edge[axis];

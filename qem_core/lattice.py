@@ -29,10 +29,9 @@ __all__ = ["LATTICE_GRID_BITS", "place_on_tangent_lattice"]
 # The grid the lattice is laid on: the server's streams (positions of 16 bits). A
 # stream of another grid codes the same splits exactly, as if there were no lattice.
 LATTICE_GRID_BITS = 16
-# How much more quadric error a vertex may take on the lattice than at its optimum.
-ERROR_TOLERANCE = 0.25
-# What the grid cannot tell apart: half a cell, squared (in cells of the mean step).
-FLOOR = 0.25
+# How much more quadric error a vertex may take on the lattice than at its optimum
+# (the build's, unrounded: so the grid's rounding counts too).
+ERROR_TOLERANCE = 0.1
 # A move may turn no face of the vertex's fan by more than 30 degrees.
 MIN_TURN_COS = float(np.cos(np.radians(30.0)))
 # Moves that flip a face are put back this many times over; if one still does, none moves.
@@ -73,8 +72,8 @@ def place_on_tangent_lattice(pm: ProgressiveMesh, bits: int = LATTICE_GRID_BITS)
     if parent.shape[0] != pm.n_splits:
         raise CorruptFileError("inconsistent vertex splits: a relabelled face has no corner s")
     place_inner_vertices(
-        q, splits.split_vertex, parent, fan_offsets, fans, quadrics, normals,
-        grid.step / scale, (1 << bits) - 1, ERROR_TOLERANCE, FLOOR, MIN_TURN_COS,
+        q, (originals - grid.origin) / grid.step, splits.split_vertex, parent, fan_offsets, fans, quadrics, normals,
+        grid.step / scale, (1 << bits) - 1, ERROR_TOLERANCE, MIN_TURN_COS,
     )  # fmt: skip
     del quadrics
     moved = (q != before).any(axis=1)

@@ -131,11 +131,11 @@ class BuildOptions:
     tangent_lattice : bool
         Move each vertex that splits again (not those of the full level) along the
         surface to the nearest point of the split stream's tangent lattice, if that
-        costs at most a quarter more quadric error than its optimum
+        costs at most a tenth more quadric error than its optimum
         (qem_core/lattice.py). The stream codes such a vertex's place along the surface
         in units of about a sixteenth of the edge it splits into, rather than exactly:
-        the streams are 10-17 % smaller, for about 2 % more RMS error at the finer
-        levels (docs/performance.md). False keeps every vertex at its optimum, as does
+        the streams are 8-15 % smaller, for about 1 % more RMS error
+        (docs/performance.md). False keeps every vertex at its optimum, as does
         preserve_volume (a move along the surface would change the volume).
     """
 

@@ -218,18 +218,19 @@ def _entry(quadric, i, j):
 
 
 @numba.njit(cache=True, nogil=True)
-def place_inner_vertices(q, split_vertex, parent, fan_offsets, fans, quadrics, normals, ratio,
-                         q_max, tolerance, floor, min_cos):
+def place_inner_vertices(q, exact, split_vertex, parent, fan_offsets, fans, quadrics, normals,
+                         ratio, q_max, tolerance, min_cos):
     """Move the inner vertices of a progressive mesh onto the tangent lattice, in place.
 
-    q (slots, 3) int64: the grid positions by slot, as the stream codes them;
+    q (slots, 3) int64: the grid positions by slot, as the stream codes them; exact
+    (slots, 3): the same before rounding, in grid units (the build's optima);
     split_vertex (k,); parent, fan_offsets, fans: ``split_fans``; quadrics (n_full,
     QUADRIC_SIZE) and normals (faces, 3): the full level's vertex quadrics and unit face
     normals (``quadrics.fill_face_quadrics``) in coordinates q * ratio (ratio (3,): the
     grid's step per axis over its mean). A vertex's quadric is the sum of its leaves';
     it moves to the lattice point of least quadric error near it, if that error is at
-    most (1 + tolerance) times its own plus W * floor (floor a squared distance: what
-    the grid cannot tell apart) and no face of its fan turns by more than acos(min_cos)
+    most (1 + tolerance) times the optimum's (at ``exact``: the grid's own rounding
+    counts, so a level finer than the grid keeps its optima) and no face of its fan turns by more than acos(min_cos)
     or away from the full level's face it comes from. A vertex stays if it is on the
     grid's border on some axis (the grid is the box of every position: moving it could
     shrink the box), on the mesh's border (its fan is open: the leaves' planes do not
@@ -282,13 +283,10 @@ def place_inner_vertices(q, split_vertex, parent, fan_offsets, fans, quadrics, n
         if not _mid_frame(context, edge, axes, binormal):
             continue
         _in_grid_units(totals[s], ratio, quadric)
-        # The planes' weights: the trace of A, each normal being of unit length.
-        weights = totals[s, 0] + totals[s, 3] + totals[s, 5]
         a_axis, b_axis, k_axis = axes[0], axes[1], axes[2]
         # A little of the identity, so that a flat quadric still picks the nearest point.
         eps = 1e-9 * (quadric[0] + quadric[3] + quadric[5]) + 1e-300
-        bound = (1.0 + tolerance) * evaluate(quadric, float(old[0]), float(old[1]), float(old[2]))
-        bound += floor * weights
+        bound = (1.0 + tolerance) * evaluate(quadric, exact[slot, 0], exact[slot, 1], exact[slot, 2])
         abb = _entry(quadric, b_axis, b_axis) + eps
         abk = _entry(quadric, b_axis, k_axis)
         akk = _entry(quadric, k_axis, k_axis) + eps

@@ -66,14 +66,16 @@ def place_on_tangent_lattice(pm: ProgressiveMesh, bits: int = LATTICE_GRID_BITS)
     quadrics = np.empty((pm.n_full, QUADRIC_SIZE))
     normals = np.empty((full_faces.shape[0], 3))
     fill_face_quadrics(
-        (vertices - grid.origin) / scale, full_faces, WEIGHTING_CODES.get(weighting, WEIGHTING_CODES["sqrt_area"]),
+        (vertices - grid.origin) / scale, full_faces,
+        WEIGHTING_CODES.get(weighting, WEIGHTING_CODES["sqrt_area"]),
         np.empty((0, QUADRIC_SIZE)), normals, quadrics, sort_chunks(),
     )  # fmt: skip
     if parent.shape[0] != pm.n_splits:
         raise CorruptFileError("inconsistent vertex splits: a relabelled face has no corner s")
     place_inner_vertices(
-        q, (originals - grid.origin) / grid.step, splits.split_vertex, parent, fan_offsets, fans, quadrics, normals,
-        grid.step / scale, (1 << bits) - 1, ERROR_TOLERANCE, MIN_TURN_COS,
+        q, (originals - grid.origin) / grid.step, splits.split_vertex, parent, fan_offsets,
+        fans, quadrics, normals, grid.step / scale, (1 << bits) - 1, ERROR_TOLERANCE,
+        MIN_TURN_COS,
     )  # fmt: skip
     del quadrics
     moved = (q != before).any(axis=1)

@@ -230,11 +230,12 @@ def place_inner_vertices(q, exact, split_vertex, parent, fan_offsets, fans, quad
     grid's step per axis over its mean). A vertex's quadric is the sum of its leaves';
     it moves to the lattice point of least quadric error near it, if that error is at
     most (1 + tolerance) times the optimum's (at ``exact``: the grid's own rounding
-    counts, so a level finer than the grid keeps its optima) and no face of its fan turns by more than acos(min_cos)
-    or away from the full level's face it comes from. A vertex stays if it is on the
-    grid's border on some axis (the grid is the box of every position: moving it could
-    shrink the box), on the mesh's border (its fan is open: the leaves' planes do not
-    hold the border), or if a move would change the frame its split is coded in."""
+    counts, so a level finer than the grid keeps its optima) and no face of its fan
+    turns by more than acos(min_cos) or away from the full level's face it comes from.
+    A vertex stays if it is on the grid's border on some axis (the grid is the box of
+    every position: moving it could shrink the box), on the mesh's border (its fan is
+    open: the leaves' planes do not hold the border), or if a move would change the
+    frame its split is coded in."""
     k = split_vertex.shape[0]
     n_base = q.shape[0] - 2 * k
     totals = quadrics.copy()
@@ -286,7 +287,8 @@ def place_inner_vertices(q, exact, split_vertex, parent, fan_offsets, fans, quad
         a_axis, b_axis, k_axis = axes[0], axes[1], axes[2]
         # A little of the identity, so that a flat quadric still picks the nearest point.
         eps = 1e-9 * (quadric[0] + quadric[3] + quadric[5]) + 1e-300
-        bound = (1.0 + tolerance) * evaluate(quadric, exact[slot, 0], exact[slot, 1], exact[slot, 2])
+        optimum = evaluate(quadric, exact[slot, 0], exact[slot, 1], exact[slot, 2])
+        bound = (1.0 + tolerance) * optimum
         abb = _entry(quadric, b_axis, b_axis) + eps
         abk = _entry(quadric, b_axis, k_axis)
         akk = _entry(quadric, k_axis, k_axis) + eps

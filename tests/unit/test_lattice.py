@@ -67,7 +67,7 @@ def test_most_splits_are_coded_on_the_lattice_and_the_stream_is_smaller(sphere_p
     decisions = _lattice_decisions(on)
     coded = decisions[decisions >= 0]
     assert coded.size > 0.5 * on.n_splits
-    assert (coded == 1).mean() > 0.9
+    assert (coded == 1).mean() > 0.8
     # Without the lattice the build's optima are rarely on it: the decision says so.
     assert (_lattice_decisions(off) == 1).mean() < 0.1
     assert _stream_bytes(on) < 0.95 * _stream_bytes(off)

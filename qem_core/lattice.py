@@ -4,7 +4,7 @@ Each split codes the midpoint of its two new vertices against the position of th
 vertex it splits (docs/formats.md, section 2, step 6), in a frame of the edge and the
 ring's normal: one value across the surface and two along it. The quadric optimum puts
 the vertex anywhere along the surface within its edge, so those two cost about log2 of
-the edge's length in bits each: the largest part of the stream. Moving a vertex along
+the edge's length in bits each: about a third of the stream. Moving a vertex along
 the surface costs its level little error, so the build moves every vertex that splits
 again (an inner vertex of the contraction forest; the full level's vertices do not
 move) to the point of least quadric error whose two tangent values are multiples of the

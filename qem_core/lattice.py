@@ -20,7 +20,7 @@ from ._kernels.adjacency import sort_chunks
 from ._kernels.lattice import flipped_moves, place_inner_vertices, split_fans
 from ._kernels.quadrics import QUADRIC_SIZE, fill_face_quadrics
 from .errors import CorruptFileError
-from .options import WEIGHTING_CODES
+from .options import WEIGHTING_CODES, BuildOptions
 from .progressive import ProgressiveMesh
 from .stream import grid_for
 
@@ -52,7 +52,7 @@ def place_on_tangent_lattice(pm: ProgressiveMesh, bits: int = LATTICE_GRID_BITS)
     q = before.copy()
     splits = pm.splits(pm.n_base, pm.n_full)
     vertices, full_faces = pm.lod(pm.n_full)
-    weighting = pm.metadata.get("options", {}).get("weighting", "sqrt_area")
+    weighting = pm.metadata.get("options", {}).get("weighting", BuildOptions.weighting)
     # The lattice's coordinates: the world scaled so that the grid's mean step is 1.
     scale = float(np.mean(grid.step))
     _, base_faces = pm.lod(pm.n_base)
@@ -67,7 +67,7 @@ def place_on_tangent_lattice(pm: ProgressiveMesh, bits: int = LATTICE_GRID_BITS)
     normals = np.empty((full_faces.shape[0], 3))
     fill_face_quadrics(
         (vertices - grid.origin) / scale, full_faces,
-        WEIGHTING_CODES.get(weighting, WEIGHTING_CODES["sqrt_area"]),
+        WEIGHTING_CODES.get(weighting, WEIGHTING_CODES[BuildOptions.weighting]),
         np.empty((0, QUADRIC_SIZE)), normals, quadrics, sort_chunks(),
     )  # fmt: skip
     if parent.shape[0] != pm.n_splits:

@@ -250,6 +250,7 @@ def place_inner_vertices(q, exact, split_vertex, parent, fan_offsets, fans, quad
     binormal = np.zeros(3, np.int64)
     moved_binormal = np.zeros(3, np.int64)
     old = np.zeros(3, np.int64)
+    c = np.zeros(3, np.int64)  # the candidate being checked
     candidates = np.zeros((8, 3), np.int64)
     costs = np.zeros(8)
     turned = np.zeros(3)
@@ -333,8 +334,7 @@ def place_inner_vertices(q, exact, split_vertex, parent, fan_offsets, fans, quad
                     cheapest = r
             costs[cheapest] = np.inf
             for d in range(3):
-                trial[d] = candidates[cheapest, d]
-            c = trial
+                c[d] = candidates[cheapest, d]
             if _turns_a_face(fans, lo, hi, q, old, c, ratio, normals, min_cos, turned, before):
                 continue
             # The encoder computes the frame with s at its new place. Around a closed

@@ -1685,8 +1685,8 @@ def decode_connectivity(
                 )
                 value = _decode_value(dec, data, probs, slots)
                 if lattice and n_known != 1:
-                    # A mid within the grid has tangent values of a few grid widths;
-                    # refusing larger ones keeps value * step below 2^53.
+                    # A mid on the grid is under 2^bits an axis; a value past 8 grid
+                    # lengths is refused, which keeps value * step below 2^47.
                     if abs(value) > 8 * (q_max + 1):
                         status = BAD_POSITION
                     value *= step

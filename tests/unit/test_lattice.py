@@ -3,6 +3,7 @@ that the split stream codes their place in a few bits; the full level never move
 
 from pathlib import Path
 
+import msgpack
 import numpy as np
 import pytest
 
@@ -13,9 +14,11 @@ from qem_core.stream import (
     encode_split_frames,
     grid_for,
     iter_frames,
+    range_code_fields,
     split_frame_symbols,
 )
 from tests.tiny_meshes import icosphere, perforated_icosphere
+from tests.unit.test_stream import _first_frame, _sealed
 
 SHARED = Path(__file__).resolve().parents[3] / "shared" / "meshes"
 ON_LATTICE = 7  # stream_coding._ON_LATTICE: the decision's column of the position symbols
@@ -140,11 +143,6 @@ def _lattice_frame(pm, n2, column, value):
     """The first frame of pm's stream to n2 with one split on the lattice given
     ``value`` as its mid value in ``column`` (4: the first, 6: the third), well coded
     and sealed."""
-    import msgpack
-
-    from qem_core.stream import range_code_fields
-    from tests.unit.test_stream import _first_frame, _sealed
-
     (symbols,) = split_frame_symbols(pm, pm.n_base, n2)
     on = np.flatnonzero(symbols.positions[:, ON_LATTICE] == 1)
     assert on.size, "no split on the lattice to craft"

@@ -1100,7 +1100,8 @@ export class ProgressiveLevels {
     const lattice = step > 1 && coder.bit(probs, LATTICE_SLOT) === 1;
     slots[0] = lattice ? LATTICE1_SLOTS : MID1_SLOTS + Math.min(bitLength(edge[a]), ROWS - 1) * IS;
     slots[1] = MID_SIGN_SLOTS + signContext(bulge * normal[a]);
-    mid[a] = lattice ? this.onLattice(decodeValue(coder, probs, slots), step) : decodeValue(coder, probs, slots);
+    const value = decodeValue(coder, probs, slots);
+    mid[a] = lattice ? this.onLattice(value, step) : value;
     slots[0] = MID2_SLOTS + length * IS;
     const cross = normal[b] * reduced[a] - normal[a] * reduced[b];
     slots[1] = MID_SIGN_SLOTS + 3 + signContext(bulge * Math.sign(cross) * Math.sign(reduced[a]));
@@ -1108,8 +1109,8 @@ export class ProgressiveLevels {
     mid[b] = decodeValue(coder, probs, slots) + along;
     slots[0] = lattice ? LATTICE3_SLOTS : MID3_SLOTS + length * IS;
     slots[1] = slots[0] + IS - 1;
-    const third = lattice ? this.onLattice(decodeValue(coder, probs, slots), step) : decodeValue(coder, probs, slots);
-    mid[k] = third + roundDiv(-(binormal[a] * mid[a] + binormal[b] * mid[b]), binormal[k]);
+    const third = decodeValue(coder, probs, slots);
+    mid[k] = (lattice ? this.onLattice(third, step) : third) + roundDiv(-(binormal[a] * mid[a] + binormal[b] * mid[b]), binormal[k]);
   }
 
   /** A tangent value coded in units of the lattice step, in grid units. A mid within

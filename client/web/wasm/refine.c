@@ -97,13 +97,16 @@ static inline i32 bit(i32 ctx) {
   normalise();
   return (i32)(one & 1u);
 }
+// A bit of even odds, again selected by a mask: its outcome is a coin toss, which a
+// branch would mispredict half the time.
 static inline i32 direct(void) {
   u32 r = range >> 1;
   range = r;
-  i32 b = 0;
-  if (code >= r) { code -= r; b = 1; if (code >= r) { broken = 1; code = 0; } }
+  u32 one = (u32)0 - (u32)(code >= r);
+  code -= r & one;
+  if (code >= r) { broken = 1; code = 0; }
   normalise();
-  return b;
+  return (i32)(one & 1u);
 }
 static i32 tree(i32 base, i32 n_bits) {
   i32 node = 1;
@@ -144,6 +147,7 @@ static i64 uniform(i32 base, i64 n) {
 #define ESCAPE 255
 #define SPAN_RING_LIMIT 64
 #define FAN_SCAN 16
+#define SMALL_SET 16
 #define S_BUCKETS 32
 #define S_BUCKET_BITS 5
 #define DIFF_BITS 13
@@ -334,10 +338,28 @@ static void gather(i32 s) {
   i32 stamp = new_stamp(), m = 0;
   for (i32 q = 0; q < n; q++) {
     i32 a = after_[q], b = before_[q];
-    if (a != s && q_of(a)[STAMP] != stamp) { q_of(a)[STAMP] = stamp; nb[m++] = a; }
-    if (b != s && q_of(b)[STAMP] != stamp) { q_of(b)[STAMP] = stamp; nb[m++] = b; }
+    // Without a branch on whether the vertex is new to the set: each neighbour comes
+    // twice (after one corner, before the next), so the outcome is a coin toss.
+    i32 *pa = q_of(a) + STAMP;
+    i32 new_a = (a != s) & (*pa != stamp);
+    *pa = new_a ? stamp : *pa;
+    nb[m] = a; m += new_a;
+    i32 *pb = q_of(b) + STAMP;
+    i32 new_b = (b != s) & (*pb != stamp);
+    *pb = new_b ? stamp : *pb;
+    nb[m] = b; m += new_b;
   }
-  sort_prefix_i32(nb, m);
+  if (m <= SMALL_SET) {
+    // Distinct values: each one's rank is how many are smaller, counted without a
+    // branch; the set goes to its sorted places through a copy.
+    i32 held[SMALL_SET];
+    for (i32 q = 0; q < m; q++) held[q] = nb[q];
+    for (i32 q = 0; q < m; q++) {
+      i32 rank = 0, v = held[q];
+      for (i32 r = 0; r < m; r++) rank += held[r] < v;
+      nb[rank] = v;
+    }
+  } else sort_prefix_i32(nb, m);
   nn = m;
   nc = n;
 }
@@ -366,8 +388,9 @@ static i32 walk(i32 start, i32 forward, i32 stop) {
   if (nc <= FAN_SCAN) {
     for (i32 q = 0; q < nc; q++) open_[q] = sides[q];
     for (i32 step = 0; step < nc; step++) {
-      i32 q = 0;
-      while (q < nc && open_[q] != y) q++;
+      // The first open corner at y, found without a branch on where it is.
+      i32 q = nc;
+      for (i32 r = nc - 1; r >= 0; r--) q = open_[r] == y ? r : q;
       if (q == nc) break;
       open_[q] = -1; mark[q] = 1; y = steps[q];
       if (y == stop) break;
@@ -432,10 +455,11 @@ static i32 ring_sum(i32 v, i32 other, i64 *total) {
     for (int j = 0; j < 3; j++) {
       i32 w = faces[f + j];
       i32 *p = q_of(w);
-      if (w == v || w == other || p[STAMP] == stamp) continue;
-      p[STAMP] = stamp;
-      count++;
-      x += p[0]; y += p[1]; z += p[2];
+      i32 take_it = (w != v) & (w != other) & (p[STAMP] != stamp); // as in gather
+      i64 keep = -(i64)take_it;
+      p[STAMP] = take_it ? stamp : p[STAMP];
+      count += take_it;
+      x += p[0] & keep; y += p[1] & keep; z += p[2] & keep;
     }
   }
   total[0] = x; total[1] = y; total[2] = z;

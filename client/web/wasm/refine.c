@@ -237,7 +237,7 @@ static i32 new_stamp(void) {
   return ++stamps;
 }
 static i32 *spill; static u32 spill_len, spill_end;
-static i32 *cs, *after_, *before_, *nb, *open_, *ys; static u8 *mark; static double *keys;
+static i32 *cs, *after_, *before_, *nb, *open_, *ys, *visits; static u8 *mark; static double *keys;
 static u32 scratch;  // room of the corner buffers
 static i32 nc, nn, keys_for;
 // outputs: as ProgressiveLevels holds them
@@ -277,15 +277,6 @@ static void link(i32 v, i32 c) {
   spill[at + n] = c;
   fan[block] = n + 1;
 }
-static void unlink(i32 v, i32 c) {
-  i32 *list;
-  i32 n = corners_of(v, &list);
-  i32 i = 0;
-  while (i < n && list[i] != c) i++;
-  if (i == n) return;
-  for (; i < n - 1; i++) list[i] = list[i + 1];
-  fan[FAN_BLOCK * v] = n - 1;
-}
 // a[0..n) ascending: by insertion for a ring's few entries, else a heap sort (refine.js
 // uses the typed array's sort there: the same order, the values being numbers)
 #define SORT_PREFIX(name, type)                                                          \
@@ -320,7 +311,8 @@ static i32 grow(u32 degree) {
   cs = ncs;
   after_ = take(4 * degree); before_ = take(4 * degree); nb = take(8 * degree);
   mark = take(degree); open_ = take(4 * degree); ys = take(4 * degree); keys = take(8 * degree);
-  if (!after_ || !before_ || !nb || !mark || !open_ || !ys || !keys) FAIL_V(E_MEMORY, 0);
+  visits = take(4 * degree);
+  if (!after_ || !before_ || !nb || !mark || !open_ || !ys || !keys || !visits) FAIL_V(E_MEMORY, 0);
   scratch = degree;
   return 1;
 }
@@ -380,11 +372,14 @@ static i32 fan_next(u8 *used, i32 y) {
   }
   return -1;
 }
+// The split's last walk: where it started, which way, the corners it took in order
+// (visits) and whether it ended at its stop (else for want of an open corner).
+static i32 walked_from, walked_forward, walked_steps, walked_to_stop;
 static i32 walk(i32 start, i32 forward, i32 stop) {
   i32 *sides = forward ? before_ : after_;
   i32 *steps = forward ? after_ : before_;
   for (i32 q = 0; q < nc; q++) mark[q] = 0;
-  i32 y = start, m = 0;
+  i32 y = start, m = 0, taken = 0, to_stop = 0;
   if (nc <= FAN_SCAN) {
     for (i32 q = 0; q < nc; q++) open_[q] = sides[q];
     for (i32 step = 0; step < nc; step++) {
@@ -393,22 +388,39 @@ static i32 walk(i32 start, i32 forward, i32 stop) {
       for (i32 r = nc - 1; r >= 0; r--) q = open_[r] == y ? r : q;
       if (q == nc) break;
       open_[q] = -1; mark[q] = 1; y = steps[q];
-      if (y == stop) break;
+      visits[taken++] = q;
+      if (y == stop) { to_stop = 1; break; }
       ys[m++] = y;
     }
-    return m;
+  } else {
+    fan_keys(forward);
+    for (i32 step = 0; step < nc; step++) {
+      i32 q = fan_next(mark, y);
+      if (q < 0) break;
+      mark[q] = 1; y = steps[q];
+      visits[taken++] = q;
+      if (y == stop) { to_stop = 1; break; }
+      ys[m++] = y;
+    }
   }
-  fan_keys(forward);
-  for (i32 step = 0; step < nc; step++) {
-    i32 q = fan_next(mark, y);
-    if (q < 0) break;
-    mark[q] = 1; y = steps[q];
-    if (y == stop) break;
-    ys[m++] = y;
-  }
+  walked_from = start; walked_forward = forward; walked_steps = taken; walked_to_stop = to_stop;
   return m;
 }
+// The fan from wing xl forward to wing xr. The second wing's walk (the split's first)
+// went forward from xl too in nearly every split, and took the same corners as this one
+// until one of them stopped: its visits give this walk, unless it stopped at xl before
+// reaching xr (this one would go on).
 static void predict(i32 xl, i32 xr) {
+  if (xl >= 0 && walked_steps > 0 && walked_from == xl && walked_forward) {
+    for (i32 q = 0; q < nc; q++) mark[q] = 0;
+    i32 p = 0;
+    for (; p < walked_steps; p++) {
+      i32 q = visits[p];
+      mark[q] = 1;
+      if (after_[q] == xr) return;
+    }
+    if (!walked_to_stop) return;
+  }
   if (xl >= 0) walk(xl, 1, xr);
   else if (xr >= 0) walk(xr, 0, -1);
   else for (i32 q = 0; q < nc; q++) mark[q] = 0;
@@ -451,9 +463,12 @@ static i32 ring_sum(i32 v, i32 other, i64 *total) {
   i32 stamp = new_stamp(), count = 0;
   i64 x = 0, y = 0, z = 0;
   for (i32 i = 0; i < n; i++) {
-    i32 c = list[i], f = c - c % 3;
-    for (int j = 0; j < 3; j++) {
-      i32 w = faces[f + j];
+    // The corner's own vertex is v: only the face's two others can join the set (both
+    // are still checked against v, for a face that holds it twice).
+    i32 c = list[i], f = c - c % 3, j = c - f;
+    i32 after = f + (j == 2 ? 0 : j + 1), before = f + (j == 0 ? 2 : j - 1);
+    for (int k = 0; k < 2; k++) {
+      i32 w = faces[k ? before : after];
       i32 *p = q_of(w);
       i32 take_it = (w != v) & (w != other) & (p[STAMP] != stamp); // as in gather
       i64 keep = -(i64)take_it;
@@ -478,12 +493,21 @@ static void span_prediction(i32 s, i32 t, i64 *prediction) {
     prediction[d] = pt - ps;
   }
 }
+// Relabel face f's first corner at s to t, linking it to t; s's list is cleared of the
+// moved corners once the split's relabels are done (drop_moved), in one pass rather than
+// one search and shift of the list for each.
 static i32 relabel(i32 f, i32 s, i32 t) {
   for (int j = 0; j < 3; j++) {
     i32 c = 3 * f + j;
-    if (faces[c] == s) { faces[c] = t; unlink(s, c); link(t, c); return 1; }
+    if (faces[c] == s) { faces[c] = t; link(t, c); return 1; }
   }
   return 0;
+}
+static void drop_moved(i32 s) {
+  i32 *list;
+  i32 n = corners_of(s, &list), m = 0;
+  for (i32 i = 0; i < n; i++) { i32 c = list[i]; list[m] = c; m += faces[c] == s; }
+  fan[FAN_BLOCK * s] = m;
 }
 
 // ---- positions (decodePositions, decodeMid) ---------------------------------------------
@@ -604,7 +628,7 @@ i32 qem_init(i32 nb_, i32 nfull, i32 ffull, i32 fbase, i32 bits, i32 wedges) {
   faces = take(12u * f_full); fan = take(4u * FAN_BLOCK * n_full);
   spill_len = 1024; spill = take(4 * spill_len); spill_end = 1;
   scratch = 16; cs = take(64); after_ = take(64); before_ = take(64); nb = take(128); mark = take(16);
-  open_ = take(64); ys = take(64); keys = take(128);
+  open_ = take(64); ys = take(64); keys = take(128); visits = take(64);
   stamps = 0;
   probs = take(2 * CONTEXT_SLOTS);
   i32 n_splits = n_full - n_base;
@@ -614,7 +638,7 @@ i32 qem_init(i32 nb_, i32 nfull, i32 ffull, i32 fbase, i32 bits, i32 wedges) {
   relabel_len = 2u * (n_splits > 8 ? n_splits : 8); relabel_faces = take(4 * relabel_len);
   base_q = take(12u * (n_base > 0 ? n_base : 1)); base_faces = take(12u * (fbase > 0 ? fbase : 1));
   if (!faces || !fan || !spill || !cs || !after_ || !before_ || !nb || !mark || !open_ || !ys ||
-      !keys || !probs || !out_faces || !split_vertex_out || !deltas_out || !level_faces ||
+      !keys || !visits || !probs || !out_faces || !split_vertex_out || !deltas_out || !level_faces ||
       !relabel_offsets || !relabel_faces || !base_q || !base_faces)
     return 0;
   return 1;
@@ -711,6 +735,7 @@ i32 qem_decode(const u8 *coded, u32 coded_len, i32 n_from, i32 k, i32 faces_from
     corners_walked += nc;
     if (i > 0 && corners_walked > FRAME_WORK_LIMIT) { error_value = FRAME_WORK_LIMIT; return E_WORK; }
     keys_for = -1;
+    walked_steps = 0; // no walk yet this split
     ring_shape(s, &shape);
     i64 count = integer(COUNT_SLOTS);
     if (count > face_end - face) return E_COUNTS;
@@ -772,6 +797,7 @@ i32 qem_decode(const u8 *coded, u32 coded_len, i32 n_from, i32 k, i32 faces_from
       if (error) return error;
       relabel_faces[relabel_at++] = f;
     }
+    drop_moved(s);
     for (i32 c = 3 * first_new; c < 3 * face; c++) { link(faces[c], c); if (error) return error; }
     if (with_wedges) wedge_split(i, s, t, nc, first_new, face);
     decode_positions(s, t, &shape, edge, mid);

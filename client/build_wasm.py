@@ -25,8 +25,10 @@ def _exports(source: str) -> list[str]:
     return sorted(set(re.findall(r"^\w[\w\s*]*?\b(qem_\w+)\(", source, re.MULTILINE)))
 
 
-def build(target: Path = TARGET) -> Path:
-    """Compile SOURCE into `target`; raises SystemExit with the compiler's words on failure."""
+def build(target: Path = TARGET, defines: dict[str, str] | None = None) -> Path:
+    """Compile SOURCE into `target`; raises SystemExit with the compiler's words on failure.
+    ``defines``: macros of refine.c set otherwise (the tests build a variant that reads
+    ahead on any mesh, ``READ_AHEAD_BYTES=0``)."""
     try:
         import ziglang  # noqa: F401  (only whether it is there)
     except ImportError:
@@ -37,7 +39,9 @@ def build(target: Path = TARGET) -> Path:
     exports = [f"-Wl,--export={name}" for name in _exports(SOURCE.read_text())]
     command = [
         sys.executable, "-m", "ziglang", "cc", "--target=wasm32-freestanding", "-O3",
-        "-mbulk-memory", "-nostdlib", "-Wl,--no-entry", *exports, "-o", str(target), str(SOURCE),
+        "-mbulk-memory", "-nostdlib", "-Wl,--no-entry", *exports,
+        *(f"-D{name}={value}" for name, value in (defines or {}).items()),
+        "-o", str(target), str(SOURCE),
     ]  # fmt: skip
     done = subprocess.run(command, capture_output=True, text=True, check=False)
     if done.returncode != 0:

@@ -804,6 +804,34 @@ def test_viewer_draws_off_screen_without_a_gpu(server, tmp_path):
         assert page.errors == []
 
 
+def test_viewer_prepares_its_frames_off_screen_after_the_first(server, tmp_path):
+    """With a GL that draws on the CPU, a mesh's frames off screen need programs (and the
+    GL's code for them) that the canvas's frames do not: the viewer draws its first frame
+    once more off screen, while the stream arrives, rather than leave them to the full
+    mesh's frame. bunny's frames are cheap enough for the canvas: only that one is drawn
+    off screen, and the levels and the picture are as ever."""
+    info = upload_ready(server, "bunny.ply")
+    with chromium_page(tmp_path / "profile") as page, httpx.Client(timeout=60) as http:
+        require_software_gl(page, server.url, "no frame is drawn off screen")
+        state = open_at_full_detail(page, server.url, info["id"])
+        assert state["failure"] is None
+        # by the full mesh's frame: that one, not yet the view at rest's (its polish)
+        assert state["framesOffScreen"] == 1 and state["framesPolished"] == 0, state
+        url = f"{server.url}/v1/meshes/{info['id']}"
+        assert page.evaluate("window.qemViewer.levelDigest()") == served_digest(
+            http, url, info["vertices"]
+        )[0]
+        page.evaluate(
+            "() => new Promise((done) => requestAnimationFrame(() => setTimeout(done, 500)))"
+        )
+        for overlay in ("#hud", "#controls"):
+            page.eval_on_selector(overlay, "node => { node.style.visibility = 'hidden'; }")
+        shot = page.locator("#canvas").screenshot()
+        stats = page.evaluate(_IMAGE_STATS, base64.b64encode(shot).decode())
+        assert 0.02 < stats["away"] < 0.95, stats
+        assert page.errors == []
+
+
 def test_viewer_polishes_a_view_at_rest_without_a_gpu(server, tmp_path):
     """With a GL that draws on the CPU, each sample costs (SwiftShader: three times the
     time at 4 samples as at 1), so the canvas and the frames have one, and a view at rest

@@ -817,10 +817,8 @@ def test_viewer_prepares_its_frames_off_screen_after_the_first(server, tmp_path)
         assert state["failure"] is None
         # by the full mesh's frame: that one, not yet the view at rest's (its polish)
         assert state["framesOffScreen"] == 1 and state["framesPolished"] == 0, state
-        url = f"{server.url}/v1/meshes/{info['id']}"
-        assert page.evaluate("window.qemViewer.levelDigest()") == served_digest(
-            http, url, info["vertices"]
-        )[0]
+        full = served_digest(http, f"{server.url}/v1/meshes/{info['id']}", info["vertices"])
+        assert page.evaluate("window.qemViewer.levelDigest()") == full[0]
         page.evaluate(
             "() => new Promise((done) => requestAnimationFrame(() => setTimeout(done, 500)))"
         )

@@ -808,15 +808,17 @@ def test_viewer_prepares_its_frames_off_screen_after_the_first(server, tmp_path)
     """With a GL that draws on the CPU, a mesh's frames off screen need programs (and the
     GL's code for them) that the canvas's frames do not: the viewer draws its first frame
     once more off screen, while the stream arrives, rather than leave them to the full
-    mesh's frame. bunny's frames are cheap enough for the canvas: only that one is drawn
-    off screen, and the levels and the picture are as ever."""
+    mesh's frame (a view at rest's polish, off screen too, needs them as well). With every
+    other frame kept on the canvas (however long the machine takes to draw it), that one
+    is drawn off screen by the full mesh's frame, and the levels and the picture are as
+    ever."""
     info = upload_ready(server, "bunny.ply")
     with chromium_page(tmp_path / "profile") as page, httpx.Client(timeout=60) as http:
         require_software_gl(page, server.url, "no frame is drawn off screen")
+        page.evaluate("window.qemViewer.drawOffScreenAbove(1e9)")
         state = open_at_full_detail(page, server.url, info["id"])
         assert state["failure"] is None
-        # by the full mesh's frame: that one, not yet the view at rest's (its polish)
-        assert state["framesOffScreen"] == 1 and state["framesPolished"] == 0, state
+        assert state["framesOffScreen"] - state["framesPolished"] == 1, state
         full = served_digest(http, f"{server.url}/v1/meshes/{info['id']}", info["vertices"])
         assert page.evaluate("window.qemViewer.levelDigest()") == full[0]
         page.evaluate(

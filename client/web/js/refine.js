@@ -386,8 +386,13 @@ class SplitState {
     this.before = new Int32Array(16); // and the one before
     this.nb = new Int32Array(32); // its distinct neighbours, sorted
     this.mark = new Uint8Array(16);
-    this.open = new Int32Array(16); // walk's sides of the corners not taken yet
     this.ys = new Int32Array(16); // vertices met walking around s
+    this.visits = new Int32Array(16); // the corners the split's last walk took, in order
+    // and where it started, which way, how many it took, whether it ended at its stop
+    this.walkedFrom = -1;
+    this.walkedForward = false;
+    this.walkedSteps = 0;
+    this.walkedToStop = false;
     this.keys = new Float64Array(16); // the fan's corners by side (fanKeys)
     this.stamps = 0; // the last stamp given (newStamp)
     this.sumA = [0, 0, 0];
@@ -453,19 +458,21 @@ class SplitState {
     return at;
   }
 
-  /** Drop corner c from v's list, keeping it in order: lists stay sorted (corners join
-   * in increasing order: a new face's are the highest yet, and a relabelled corner goes
-   * to the new vertex t, whose list it starts), so gather's sort finds them in order. */
-  unlink(v, c) {
-    const n = this.cornersOf(v);
-    const list = this.list;
+  /** Drop from s's list the corners its split relabelled to t, in one pass once they are
+   * all relabelled, keeping the list in order: lists stay sorted (corners join in
+   * increasing order: a new face's are the highest yet, and a relabelled corner goes to
+   * the new vertex t, whose list it starts), so gather's sort finds them in order. */
+  dropMoved(s) {
+    const n = this.cornersOf(s);
+    const { list, faces } = this;
     const at = this.listAt;
-    let i = 0;
-    while (i < n && list[at + i] !== c) i++;
-    if (i === n) return;
-    // by hand: copyWithin is a runtime call, dearer than the few corners it moves
-    for (; i < n - 1; i++) list[at + i] = list[at + i + 1];
-    this.fan[FAN_BLOCK * v] = n - 1;
+    let m = 0;
+    for (let i = 0; i < n; i++) {
+      const c = list[at + i];
+      list[at + m] = c;
+      if (faces[c] === s) m++;
+    }
+    this.fan[FAN_BLOCK * s] = m;
   }
 
   /** Sorted corners of s into cs (this.nc of them), the corners after and before s in
@@ -517,8 +524,8 @@ class SplitState {
     this.before = new Int32Array(degree);
     this.nb = new Int32Array(2 * degree);
     this.mark = new Uint8Array(degree);
-    this.open = new Int32Array(degree);
     this.ys = new Int32Array(degree);
+    this.visits = new Int32Array(degree);
     this.keys = new Float64Array(degree);
   }
 
@@ -557,43 +564,63 @@ class SplitState {
    * takes the first corner (in cs order) not taken yet whose side (the corner before s,
    * after s when not `forward`) is the vertex reached, and goes on to its other side. */
   walk(nc, start, forward, stop) {
-    const { mark, ys } = this;
+    const { mark, ys, visits } = this;
     const sides = forward ? this.before : this.after;
     const steps = forward ? this.after : this.before;
     for (let q = 0; q < nc; q++) mark[q] = 0; // TypedArray.fill is a runtime call
     let y = start;
     let m = 0;
-    if (nc <= FAN_SCAN) {
-      // Few corners: scanned, the sides of those taken overwritten (vertices are >= 0).
-      const open = this.open;
-      for (let q = 0; q < nc; q++) open[q] = sides[q];
-      for (let step = 0; step < nc; step++) {
-        let q = 0;
-        while (q < nc && open[q] !== y) q++;
-        if (q === nc) break;
-        open[q] = -1;
-        mark[q] = 1;
-        y = steps[q];
-        if (y === stop) break;
-        ys[m++] = y;
-      }
-      return m;
-    }
-    this.fanKeys(nc, forward);
+    let taken = 0;
+    let toStop = false;
+    // Few corners are scanned for the first one not taken whose side is y; more are
+    // looked up in the fan's keys.
+    const scan = nc <= FAN_SCAN;
+    if (!scan) this.fanKeys(nc, forward);
     for (let step = 0; step < nc; step++) {
-      const q = this.fanNext(nc, mark, y);
+      let q = -1;
+      if (scan) {
+        for (let r = 0; r < nc; r++) {
+          if (sides[r] === y && !mark[r]) {
+            q = r;
+            break;
+          }
+        }
+      } else {
+        q = this.fanNext(nc, mark, y);
+      }
       if (q < 0) break;
       mark[q] = 1;
       y = steps[q];
-      if (y === stop) break;
+      visits[taken++] = q;
+      if (y === stop) {
+        toStop = true;
+        break;
+      }
       ys[m++] = y;
     }
+    this.walkedFrom = start;
+    this.walkedForward = forward;
+    this.walkedSteps = taken;
+    this.walkedToStop = toStop;
     return m;
   }
 
   /** The predicted relabel mask into mark[0..nc): the fan of s's faces from wing xl to
-   * wing xr, or back from xr without xl (stream_coding._predict). */
+   * wing xr, or back from xr without xl (stream_coding._predict). The second wing's walk
+   * (the split's first) went forward from xl too in nearly every split, and took the
+   * same corners as this one until one of them stopped: its visits give this walk,
+   * unless it stopped at xl before reaching xr (this one would go on). */
   predict(nc, xl, xr) {
+    if (xl >= 0 && this.walkedSteps > 0 && this.walkedFrom === xl && this.walkedForward) {
+      const { mark, visits, after } = this;
+      for (let q = 0; q < nc; q++) mark[q] = 0;
+      for (let p = 0; p < this.walkedSteps; p++) {
+        const q = visits[p];
+        mark[q] = 1;
+        if (after[q] === xr) return;
+      }
+      if (!this.walkedToStop) return;
+    }
     if (xl >= 0) this.walk(nc, xl, true, xr);
     else if (xr >= 0) this.walk(nc, xr, false, -1);
     else for (let q = 0; q < nc; q++) this.mark[q] = 0;
@@ -680,10 +707,13 @@ class SplitState {
     let y = 0;
     let z = 0;
     for (let i = 0; i < n; i++) {
+      // The corner's own vertex is v: only the face's two others can join the set (both
+      // are still checked against v, for a face that holds it twice).
       const c = list[at + i];
       const f = c - (c % 3);
-      for (let j = 0; j < 3; j++) {
-        const w = faces[f + j];
+      const j = c - f;
+      for (let k = 1; k < 3; k++) {
+        const w = faces[f + ((j + k) % 3)];
         const block = FAN_BLOCK * w;
         if (w === v || w === other || fan[block + FAN_STAMP] === stamp) continue;
         fan[block + FAN_STAMP] = stamp;
@@ -719,13 +749,13 @@ class SplitState {
     }
   }
 
-  /** The first corner of face f equal to s becomes t; false if there is none. */
+  /** The first corner of face f equal to s becomes t, linked to t (it leaves s's list
+   * at dropMoved); false if there is none. */
   relabel(f, s, t) {
     for (let j = 0; j < 3; j++) {
       const c = 3 * f + j;
       if (this.faces[c] === s) {
         this.faces[c] = t;
-        this.unlink(s, c);
         this.link(t, c);
         return true;
       }
@@ -931,6 +961,7 @@ export class ProgressiveLevels {
         fail(SPLITS_REFUSED.work(t, FRAME_WORK_LIMIT));
       }
       state.keysFor = null; // the fan keys are not this split's yet
+      state.walkedSteps = 0; // nor is any walk
       state.ringShape(s, nc, nn, shape);
       const count = coder.integer(probs, COUNT_SLOTS, false);
       if (count > faceEnd - face) fail(SPLITS_REFUSED.counts());
@@ -999,6 +1030,7 @@ export class ProgressiveLevels {
         if (!state.relabel(f, s, t)) fail(SPLITS_REFUSED.relabel(t));
         this.relabelFaces[relabel++] = f;
       }
+      state.dropMoved(s);
       for (let c = 3 * firstNew; c < 3 * face; c++) state.link(sf[c], c);
       this.wedges?.decodeSplit(i, s, t, state, nc, firstNew, face);
       this.decodePositions(coder, probs, state, s, t, shape, prediction, edge, mid, axes, slots);

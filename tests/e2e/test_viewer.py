@@ -766,6 +766,15 @@ def upload_ready(server, name: str) -> dict:
         return qem.wait_ready(qem.upload(shared_mesh(name)), timeout=READY_TIMEOUT_MS / 1000)
 
 
+def canvas_stats(page, path: Path | None = None) -> dict:
+    """_IMAGE_STATS of the canvas alone, the HUD and the controls hidden over it (saved to
+    ``path`` when given)."""
+    for overlay in ("#hud", "#controls"):
+        page.eval_on_selector(overlay, "node => { node.style.visibility = 'hidden'; }")
+    shot = page.locator("#canvas").screenshot(path=path)
+    return page.evaluate(_IMAGE_STATS, base64.b64encode(shot).decode())
+
+
 def require_software_gl(page, url: str, otherwise: str) -> None:
     """Open the viewer; skip the test unless its WebGL draws on the CPU."""
     page.goto(f"{url}/")
@@ -795,10 +804,7 @@ def test_viewer_draws_off_screen_without_a_gpu(server, tmp_path):
         page.evaluate(
             "() => new Promise((done) => requestAnimationFrame(() => setTimeout(done, 500)))"
         )
-        for overlay in ("#hud", "#controls"):
-            page.eval_on_selector(overlay, "node => { node.style.visibility = 'hidden'; }")
-        shot = page.locator("#canvas").screenshot()
-        stats = page.evaluate(_IMAGE_STATS, base64.b64encode(shot).decode())
+        stats = canvas_stats(page)
         assert 0.02 < stats["away"] < 0.95, stats  # the copy reached the canvas
         assert stats["colours"] > 16, stats
         assert page.errors == []
@@ -824,10 +830,7 @@ def test_viewer_prepares_its_frames_off_screen_after_the_first(server, tmp_path)
         page.evaluate(
             "() => new Promise((done) => requestAnimationFrame(() => setTimeout(done, 500)))"
         )
-        for overlay in ("#hud", "#controls"):
-            page.eval_on_selector(overlay, "node => { node.style.visibility = 'hidden'; }")
-        shot = page.locator("#canvas").screenshot()
-        stats = page.evaluate(_IMAGE_STATS, base64.b64encode(shot).decode())
+        stats = canvas_stats(page)
         assert 0.02 < stats["away"] < 0.95, stats
         assert page.errors == []
 
@@ -853,10 +856,7 @@ def test_viewer_polishes_a_view_at_rest_without_a_gpu(server, tmp_path):
         page.wait_for_function(
             "(n) => window.qemViewer.state.framesPolished > n", arg=state["framesPolished"]
         )
-        for overlay in ("#hud", "#controls"):
-            page.eval_on_selector(overlay, "node => { node.style.visibility = 'hidden'; }")
-        shot = page.locator("#canvas").screenshot()
-        stats = page.evaluate(_IMAGE_STATS, base64.b64encode(shot).decode())
+        stats = canvas_stats(page)
         assert 0.02 < stats["away"] < 0.95, stats  # the polished copy reached the canvas
         assert stats["colours"] > 16, stats
         assert page.errors == []
@@ -873,10 +873,7 @@ def test_viewer_shows_texture_and_colours_while_it_refines(server, appearance_me
             levels = (info["vertices"], info["vertices"] // 5, 100, info["vertices"] - 3)
             assert_levels_on_screen_are_served(page, http, url, levels)
             page.evaluate("() => new Promise((done) => requestAnimationFrame(() => done()))")
-            for overlay in ("#hud", "#controls"):
-                page.eval_on_selector(overlay, "node => { node.style.visibility = 'hidden'; }")
-            shot = page.locator("#canvas").screenshot(path=tmp_path / f"{name}.png")
-            stats = page.evaluate(_IMAGE_STATS, base64.b64encode(shot).decode())
+            stats = canvas_stats(page, tmp_path / f"{name}.png")
             assert 0.02 < stats["away"] < 0.95, stats
             # The texture's black patches and the colour ramp give many colours.
             assert stats["colours"] > 200, stats

@@ -366,7 +366,7 @@ export class MeshScene {
         }
         // A background redraw waiting was timed before this frame's time was known.
         if (this.timer) this.requestRender(this.backgroundInterval(), true);
-        if (!polish) setTimeout(() => this.warmOffScreen()); // after this frame's commit
+        if (this.warmedFor !== this.mesh) setTimeout(() => this.warmOffScreen()); // after its commit
         if (levels) this.onRendered?.(levels, level, polish);
       });
     if (polish) this.drawOffScreen(shown, POLISH_SAMPLES);

@@ -380,28 +380,25 @@ static i32 walk(i32 start, i32 forward, i32 stop) {
   i32 *steps = forward ? after_ : before_;
   for (i32 q = 0; q < nc; q++) mark[q] = 0;
   i32 y = start, m = 0, taken = 0, to_stop = 0;
-  if (nc <= FAN_SCAN) {
-    for (i32 q = 0; q < nc; q++) open_[q] = sides[q];
-    for (i32 step = 0; step < nc; step++) {
-      // The first open corner at y, found without a branch on where it is.
-      i32 q = nc;
+  // Few corners are scanned for the first open one at y (the sides of those taken
+  // overwritten: vertices are >= 0); more are looked up in the fan's keys.
+  i32 scan = nc <= FAN_SCAN;
+  if (scan) for (i32 q = 0; q < nc; q++) open_[q] = sides[q];
+  else fan_keys(forward);
+  for (i32 step = 0; step < nc; step++) {
+    i32 q;
+    if (scan) {
+      q = -1; // without a branch on where it is
       for (i32 r = nc - 1; r >= 0; r--) q = open_[r] == y ? r : q;
-      if (q == nc) break;
-      open_[q] = -1; mark[q] = 1; y = steps[q];
-      visits[taken++] = q;
-      if (y == stop) { to_stop = 1; break; }
-      ys[m++] = y;
+      if (q >= 0) open_[q] = -1;
+    } else {
+      q = fan_next(mark, y);
     }
-  } else {
-    fan_keys(forward);
-    for (i32 step = 0; step < nc; step++) {
-      i32 q = fan_next(mark, y);
-      if (q < 0) break;
-      mark[q] = 1; y = steps[q];
-      visits[taken++] = q;
-      if (y == stop) { to_stop = 1; break; }
-      ys[m++] = y;
-    }
+    if (q < 0) break;
+    mark[q] = 1; y = steps[q];
+    visits[taken++] = q;
+    if (y == stop) { to_stop = 1; break; }
+    ys[m++] = y;
   }
   walked_from = start; walked_forward = forward; walked_steps = taken; walked_to_stop = to_stop;
   return m;
@@ -413,8 +410,7 @@ static i32 walk(i32 start, i32 forward, i32 stop) {
 static void predict(i32 xl, i32 xr) {
   if (xl >= 0 && walked_steps > 0 && walked_from == xl && walked_forward) {
     for (i32 q = 0; q < nc; q++) mark[q] = 0;
-    i32 p = 0;
-    for (; p < walked_steps; p++) {
+    for (i32 p = 0; p < walked_steps; p++) {
       i32 q = visits[p];
       mark[q] = 1;
       if (after_[q] == xr) return;

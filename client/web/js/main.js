@@ -557,8 +557,9 @@ window.qemViewer = {
       renderVertices: levels?.wedges?.render.count ?? null,
       textureShown: scene?.textureShown ?? false,
       softwareGL: scene?.softwareGL ?? null, // the GL draws on the CPU
-      framesOffScreen: scene?.framesOffScreen ?? 0, // frames drawn off screen (scene.js)
-      framesPolished: scene?.framesPolished ?? 0, // views at rest drawn again multisampled
+      framesOffScreen: scene?.framesOffScreen ?? 0, // the mesh's frames drawn off screen (scene.js)
+      framesPolished: scene?.framesPolished ?? 0, // its views at rest drawn again multisampled
+      drawingOffScreen: scene?.drawing ?? false, // a frame off screen is drawn, not yet shown
     };
   },
   /** Draw a software GL's frames off screen when they would take over `ms` (0: all). */

@@ -78,7 +78,7 @@ export class MeshScene {
     this.targets = new Map(); // where such frames are drawn, by samples (offscreenTarget)
     this.copy = null; // and the quad that copies them to the canvas once finished
     this.offscreenMs = OFFSCREEN_MS; // tests set 0 to draw every frame off screen
-    this.framesOffScreen = 0; // frames drawn by drawOffScreen, for tests and benchmarks
+    this.framesOffScreen = 0; // the mesh's frames drawn by drawOffScreen, for tests and benchmarks
     this.polishTimer = null; // a software GL's view at rest: polished (schedulePolish)
     this.polishNext = false; // the next frame is that polish
     this.framesPolished = 0; // for tests and benchmarks
@@ -125,6 +125,7 @@ export class MeshScene {
     this.scene.add(mesh);
     this.mesh = mesh;
     this.textureShown = false;
+    this.framesOffScreen = this.framesPolished = 0; // they count the mesh on screen's frames
     if (textured) this.loadTexture(levels, material);
     if (several) this.loadAtlas(levels, material, names.includes("uv"));
     this.camera.near = radius / 100;
@@ -348,13 +349,15 @@ export class MeshScene {
     const started = this.lastRender;
     const faces = levels?.nFaces ?? 0;
     const level = levels?.level; // the levels may move on while the frame is drawn
+    const mesh = this.mesh; // and another mesh may be shown by then
     // The frame counts as shown at the next animation frame after it reaches the canvas
     // (as a page timing a static file's first frame counts it); its cost is the time
     // from here to then.
     const shown = () =>
       requestAnimationFrame(() => {
         if (polish) {
-          this.framesPolished++; // its samples' time says nothing of the next frame's
+          // Its samples' time says nothing of the next frame's.
+          if (mesh === this.mesh) this.framesPolished++;
         } else {
           const ms = performance.now() - started;
           if (this.frameFaces > 0 && faces > 1.1 * this.frameFaces) {

@@ -323,6 +323,50 @@ def hand_drawn_pm() -> ProgressiveMesh:
     )
 
 
+_STREAM_SPLITS_DRIVER = """
+import { createServer } from "node:http";
+import { readFileSync } from "node:fs";
+const { streamSplits } = await import(process.argv[2]);
+const data = readFileSync(process.argv[3]);
+const server = createServer((request, response) => response.end(data));
+await new Promise((done) => server.listen(0, "127.0.0.1", done));
+const url = `http://127.0.0.1:${server.address().port}/splits`;
+const runs = [];
+for (const withBytes of [false, true]) {
+  const frames = [];
+  const seen = [];
+  const options = { onFrame: (bytes) => seen.push(bytes) };
+  if (withBytes) options.onBytes = () => {};
+  const bytes = await streamSplits(url, { addFrame: (frame) => frames.push(frame.nTo) }, options);
+  runs.push({ bytes, frames, seen });
+}
+server.close();
+console.log(JSON.stringify(runs));
+"""
+
+
+def test_stream_splits_reads_every_frame_and_counts_its_bytes(tmp_path):
+    """refine.js's streamSplits over HTTP, with onBytes and without: every frame in order,
+    and the bytes read (its result, and onFrame's after each frame) counted either way."""
+    node = require_node()
+    vertices, faces = icosphere(2, jitter=0.05, seed=3)
+    pm = qem_core.build(vertices, faces)
+    stream = b"".join(encode_split_frames(pm, pm.n_base, pm.n_full, splits_per_frame=8))
+    (tmp_path / "splits.bin").write_bytes(stream)
+    driver = tmp_path / "driver.mjs"
+    driver.write_text(_STREAM_SPLITS_DRIVER)
+    done = subprocess.run(
+        [node, str(driver), str(WEB / "js" / "refine.js"), str(tmp_path / "splits.bin")],
+        capture_output=True, text=True, timeout=60, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    ends = list(range(pm.n_base + 8, pm.n_full, 8)) + [pm.n_full]
+    for run in json.loads(done.stdout):
+        assert run["frames"] == ends
+        assert run["bytes"] == len(stream) and run["seen"][-1] == len(stream), run
+        assert run["seen"] == sorted(run["seen"]) and run["seen"][0] > 0, run
+
+
 def test_refine_js_decodes_every_face_code_exactly(tmp_path):
     pm = hand_drawn_pm()
     codes = set()

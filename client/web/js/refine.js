@@ -1254,7 +1254,10 @@ export async function streamSplits(url, frames, { onFrame, onBytes, signal } = {
   if (!response.ok) throw await problemError(response);
   let bytes = 0;
   await readFrames(response, {
-    onChunk: (n) => onBytes?.((bytes += n)),
+    onChunk: (n) => {
+      bytes += n; // counted without onBytes too: onFrame and the result tell it
+      onBytes?.(bytes);
+    },
     onPayload: (payload) => {
       frames.addFrame(decodeFrame(payload));
       onFrame?.(bytes);

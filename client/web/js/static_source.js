@@ -169,7 +169,10 @@ export async function streamExport(opened, frames, { onFrame, onBytes, signal } 
   };
   const read = (response) =>
     readFrames(response, {
-      onChunk: (n) => onBytes?.((bytes += n)),
+      onChunk: (n) => {
+        bytes += n; // counted without onBytes too: onFrame and the result tell it
+        onBytes?.(bytes);
+      },
       onPayload: take,
     });
   for (const [, j] of frameRuns(index)) {

@@ -1246,11 +1246,14 @@ def _code_value(enc, out, probs, value, slots):
 
 
 @_kernel
-def _decode_value(dec, data, probs, slots):
-    magnitude = rc.decode_integer(dec, data, probs, slots[0], False)
-    if magnitude != 0 and rc.decode_bit(dec, data, probs, slots[1]):
-        return -magnitude
-    return magnitude
+def _read_value(reader, data, probs, slots):
+    """(value, reader): the inverse of _code_value."""
+    magnitude, reader = rc.read_integer(reader, data, probs, slots[0], False)
+    if magnitude != 0:
+        negative, reader = rc.read_bit(reader, data, probs, slots[1])
+        if negative:
+            return -magnitude, reader
+    return magnitude, reader
 
 
 # The decoder's corner sets. The encoder's per-vertex linked lists (head, nxt) cost the
@@ -1356,34 +1359,38 @@ def undo_splits(faces, quantised, split_vertex, old_positions, n_started, undo, 
 
 
 @_kernel
-def _decode_split_vertices(dec, data, probs, n_from, split_vertex):
+def _read_split_vertices(reader, data, probs, n_from, split_vertex):
     """Every split's s of the frame into split_vertex (the inverse of code_splits's
-    first loop); returns 0, SHORT_DATA, or BAD_VERTEX for an s that is no vertex yet."""
+    first loop); returns (status, reader), status 0, SHORT_DATA, or BAD_VERTEX for an s
+    that is no vertex yet."""
     previous_s = -1
     was_ahead = 0
     for i in range(split_vertex.shape[0]):
-        if dec[rc.BROKEN]:
-            return SHORT_DATA
+        if reader[rc.R_BROKEN]:
+            return SHORT_DATA, reader
         t = n_from + i
         if t < 1:
-            return BAD_VERTEX
-        if rc.decode_bit(dec, data, probs, _S_AHEAD_SLOTS + was_ahead):
+            return BAD_VERTEX, reader
+        ahead, reader = rc.read_bit(reader, data, probs, _S_AHEAD_SLOTS + was_ahead)
+        if ahead:
             was_ahead = 1
-            s = previous_s + 1 + rc.decode_integer(dec, data, probs, _S_GAP_SLOTS, False)
+            gap, reader = rc.read_integer(reader, data, probs, _S_GAP_SLOTS, False)
+            s = previous_s + 1 + gap
             if s >= t:
-                return BAD_VERTEX
+                return BAD_VERTEX, reader
         else:
             was_ahead = 0
             n = previous_s + 1
-            bucket = rc.decode_tree(dec, data, probs, _S_BUCKET_SLOTS, _S_BUCKET_BITS)
+            bucket, reader = rc.read_tree(reader, data, probs, _S_BUCKET_SLOTS, _S_BUCKET_BITS)
             lo = (bucket * n + S_BUCKETS - 1) // S_BUCKETS
             hi = ((bucket + 1) * n + S_BUCKETS - 1) // S_BUCKETS
             if hi <= lo:
-                return BAD_VERTEX
-            s = lo + rc.decode_uniform(dec, data, probs, _S_SLOTS, hi - lo)
+                return BAD_VERTEX, reader
+            within, reader = rc.read_uniform(reader, data, probs, _S_SLOTS, hi - lo)
+            s = lo + within
         previous_s = s
         split_vertex[i] = s
-    return 0
+    return 0, reader
 
 
 # How far ahead the decoder asks for each stage of a split's reads (_set_prefetch_ahead).
@@ -1478,10 +1485,10 @@ def decode_connectivity(
     first in data.
     """
     k = n_splits
-    dec = rc.start_decoder(data, 0)
+    reader = rc.reader_at(data, 0)  # the coder's state, in locals (range_coder.py)
     context = np.zeros(SPLIT_CONTEXT, np.int64)
     split_vertex = np.zeros(n_frame_splits, np.int32)
-    status = _decode_split_vertices(dec, data, probs, n_from, split_vertex)
+    status, reader = _read_split_vertices(reader, data, probs, n_from, split_vertex)
     relabel_counts = np.zeros(k, np.int64)
     relabel_faces = np.empty(max(16, 2 * k), np.int32)
     undo = np.empty(max(16, 4 * k), np.int64)
@@ -1495,7 +1502,7 @@ def decode_connectivity(
     face = faces_from
     face_end = faces_from + n_new_faces
     for i in range(0 if status else k):  # no split runs when its s was refused
-        if dec[rc.BROKEN]:
+        if reader[rc.R_BROKEN]:
             status = SHORT_DATA
             break
         t = n_from + i
@@ -1512,7 +1519,7 @@ def decode_connectivity(
             break
         keys[nc] = -1  # not keyed for this split yet
         _ring_shape(faces, quantised, s, cs, nc, nb, nn, context, work)
-        count = rc.decode_integer(dec, data, probs, _COUNT_SLOTS, False)
+        count, reader = rc.read_integer(reader, data, probs, _COUNT_SLOTS, False)
         if count > face_end - face:
             status = BAD_COUNT
             break
@@ -1524,11 +1531,11 @@ def decode_connectivity(
         first_new = face
         previous = 7
         for _ in range(count):
-            code = rc.decode_tree(dec, data, probs, _CODE_SLOTS + 8 * previous, 3)
+            code, reader = rc.read_tree(reader, data, probs, _CODE_SLOTS + 8 * previous, 3)
             previous = code
             if code == EXPLICIT:
                 for r in range(3):
-                    b = rc.decode_integer(dec, data, probs, _BACK_SLOTS, False)
+                    b, reader = rc.read_integer(reader, data, probs, _BACK_SLOTS, False)
                     if b > t:
                         status = BAD_BACK
                         break
@@ -1544,7 +1551,9 @@ def decode_connectivity(
                         faces, s, cs, nc, start, first_forward, start, mark, ys, keys
                     )
                     if walk_length > 0:
-                        step = rc.decode_integer(dec, data, probs, _step_row(walk_length), False)
+                        step, reader = rc.read_integer(
+                            reader, data, probs, _step_row(walk_length), False
+                        )
                         if step > walk_length:
                             status = BAD_THIRD
                             break
@@ -1552,17 +1561,23 @@ def decode_connectivity(
                             x = ys[step]
                 if not (xl >= 0 or xr >= 0):
                     first_forward = forward
+                escaped = 0
+                if x < 0:
+                    escaped, reader = rc.read_bit(reader, data, probs, _ESCAPE_SLOT)
                 if x >= 0:
                     pass
-                elif rc.decode_bit(dec, data, probs, _ESCAPE_SLOT):
-                    b = rc.decode_integer(dec, data, probs, _BACK_SLOTS, False)
+                elif escaped:
+                    b, reader = rc.read_integer(reader, data, probs, _BACK_SLOTS, False)
                     if b > t:
                         status = BAD_BACK
                         break
                     x = t - b
                 elif nn > 0:
                     n_index = min(nn, ESCAPE)
-                    x = nb[rc.decode_uniform(dec, data, probs, _third_row(n_index), n_index)]
+                    third, reader = rc.read_uniform(
+                        reader, data, probs, _third_row(n_index), n_index
+                    )
+                    x = nb[third]
                 else:
                     status = BAD_THIRD
                     break
@@ -1585,9 +1600,12 @@ def decode_connectivity(
         if status:
             break
         _predict(faces, s, cs, nc, xl, xr, mark, ys, keys)
-        if nc and rc.decode_bit(dec, data, probs, _MASK_SLOTS):
+        mispredicted = 0
+        if nc:
+            mispredicted, reader = rc.read_bit(reader, data, probs, _MASK_SLOTS)
+        if mispredicted:
             for q in range(nc):
-                mark[q] = rc.decode_bit(dec, data, probs, _MASK_SLOTS + 1 + mark[q])
+                mark[q], reader = rc.read_bit(reader, data, probs, _MASK_SLOTS + 1 + mark[q])
         relabel_faces = _grow(relabel_faces, n_relabel + nc)
         undo = _grow(undo, n_undo + 2 * nc)
         moved = 0
@@ -1666,10 +1684,13 @@ def decode_connectivity(
         plane = _span_axes(context, axes)
         for n_known in range(3):
             against = _span_slots(context, plane, axes, n_known, edge, prediction, slots)
-            edge[axes[n_known]] = _decode_value(dec, data, probs, slots) + against
+            value, reader = _read_value(reader, data, probs, slots)
+            edge[axes[n_known]] = value + against
         placement = 0
-        if rc.decode_bit(dec, data, probs, _PLACE_SLOTS):
-            placement = 1 + rc.decode_bit(dec, data, probs, _PLACE_SLOTS + 1)
+        placed, reader = rc.read_bit(reader, data, probs, _PLACE_SLOTS)
+        if placed:
+            which, reader = rc.read_bit(reader, data, probs, _PLACE_SLOTS + 1)
+            placement = 1 + which
         if placement == 0:
             framed = _mid_frame(context, edge, axes, binormal)
             for d in range(3):
@@ -1678,12 +1699,13 @@ def decode_connectivity(
             step = lattice_step(edge)
             lattice = False
             if framed and step > 1:
-                lattice = rc.decode_bit(dec, data, probs, _LATTICE_SLOT) == 1
+                on_lattice, reader = rc.read_bit(reader, data, probs, _LATTICE_SLOT)
+                lattice = on_lattice == 1
             for n_known in range(3):
                 against = _mid_slots(
                     context, framed, axes, n_known, edge, binormal, work, mid, slots, lattice
                 )
-                value = _decode_value(dec, data, probs, slots)
+                value, reader = _read_value(reader, data, probs, slots)
                 if lattice and n_known != 1:
                     # A mid on the grid is under 2^bits an axis; a value past 8 grid
                     # lengths is refused, which keeps value * step below 2^47.
@@ -1711,9 +1733,9 @@ def decode_connectivity(
         if status:
             break
     if status == 0:
-        if dec[rc.BROKEN]:
+        if reader[rc.R_BROKEN]:
             status = SHORT_DATA
-        elif not partial and dec[rc.POSITION] != data.shape[0]:
+        elif not partial and reader[rc.R_POSITION] != data.shape[0]:
             status = LONG_DATA
         elif not partial and face != face_end:
             status = BAD_COUNT

@@ -147,41 +147,45 @@ def decode_wedge_fields(data, k, n_symbols, n_backs, n_rows, width, probs):
     (status, counts, symbols, backs, rows): status BAD_VALUE as soon as a residual is
     over RESIDUAL_LIMIT in magnitude, SHORT_DATA if the fields need more bytes than data
     has (or data is no coder output), LONG_DATA if they leave bytes unread, else 0."""
-    dec = rc.start_decoder(data, 0)
+    reader = rc.reader_at(data, 0)  # the coder's state, in locals (range_coder.py)
     counts = np.zeros((3, k), np.int64)
     symbols = np.zeros(n_symbols, np.uint8)
     backs = np.zeros(n_backs, np.int64)
     rows = np.zeros((n_rows, width), np.int64)
     for row in range(3):
         for i in range(k):
-            counts[row, i] = rc.decode_integer(
-                dec, data, probs, _COUNT_SLOTS + row * rc.INTEGER_SLOTS, False
+            counts[row, i], reader = rc.read_integer(
+                reader, data, probs, _COUNT_SLOTS + row * rc.INTEGER_SLOTS, False
             )
-        if dec[rc.BROKEN]:
+        if reader[rc.R_BROKEN]:
             return SHORT_DATA, counts, symbols, backs, rows
     previous = 0
     for q in range(n_symbols):
         symbol = 0
-        if rc.decode_bit(dec, data, probs, _ZERO_SLOTS + _symbol_class(previous)):
-            symbol = 1 + rc.decode_tree(dec, data, probs, _SYMBOL_SLOTS, 8)
+        nonzero, reader = rc.read_bit(reader, data, probs, _ZERO_SLOTS + _symbol_class(previous))
+        if nonzero:
+            symbol, reader = rc.read_tree(reader, data, probs, _SYMBOL_SLOTS, 8)
+            symbol += 1
         symbols[q] = symbol
         previous = symbol
-        if dec[rc.BROKEN]:
+        if reader[rc.R_BROKEN]:
             return SHORT_DATA, counts, symbols, backs, rows
     for q in range(n_backs):
-        backs[q] = rc.decode_integer(dec, data, probs, _BACK_SLOTS, False)
-        if dec[rc.BROKEN]:
+        backs[q], reader = rc.read_integer(reader, data, probs, _BACK_SLOTS, False)
+        if reader[rc.R_BROKEN]:
             return SHORT_DATA, counts, symbols, backs, rows
     for r in range(n_rows):
         for d in range(width):
-            rows[r, d] = rc.decode_integer(dec, data, probs, _row_context(rows, r, d), True)
+            rows[r, d], reader = rc.read_integer(
+                reader, data, probs, _row_context(rows, r, d), True
+            )
             if abs(rows[r, d]) > RESIDUAL_LIMIT:
                 return BAD_VALUE, counts, symbols, backs, rows
-        if dec[rc.BROKEN]:
+        if reader[rc.R_BROKEN]:
             return SHORT_DATA, counts, symbols, backs, rows
-    if dec[rc.BROKEN]:
+    if reader[rc.R_BROKEN]:
         return SHORT_DATA, counts, symbols, backs, rows
-    if dec[rc.POSITION] != data.shape[0]:
+    if reader[rc.R_POSITION] != data.shape[0]:
         return LONG_DATA, counts, symbols, backs, rows
     return 0, counts, symbols, backs, rows
 

@@ -43,17 +43,17 @@ def _encode(kinds, contexts, values, bounds, out):
 @numba.njit
 def _decode(kinds, contexts, bounds, data):
     probs = np.full(_SLOTS, rc.HALF, np.uint16)
-    dec = rc.start_decoder(data, 0)
+    reader = rc.reader_at(data, 0)
     values = np.zeros(kinds.shape[0], np.int64)
     for i in range(kinds.shape[0]):
         base = _base(kinds[i], contexts[i])
         if kinds[i] <= 1:
-            values[i] = rc.decode_integer(dec, data, probs, base, kinds[i] == 0)
+            values[i], reader = rc.read_integer(reader, data, probs, base, kinds[i] == 0)
         elif kinds[i] == 2:
-            values[i] = rc.decode_tree(dec, data, probs, base, 5)
+            values[i], reader = rc.read_tree(reader, data, probs, base, 5)
         else:
-            values[i] = rc.decode_uniform(dec, data, probs, base, bounds[i])
-    return values, dec[rc.POSITION], dec[rc.BROKEN]
+            values[i], reader = rc.read_uniform(reader, data, probs, base, bounds[i])
+    return values, reader[rc.R_POSITION], reader[rc.R_BROKEN]
 
 
 _LIMIT = 2**33 - 2  # the largest magnitude encode_integer takes
@@ -132,10 +132,9 @@ def test_uniform_over_at_most_one_value_codes_nothing():
         enc, out, probs = rc.new_encoder(), np.zeros(16, np.uint8), rc.new_probs(rc.UNIFORM_SLOTS)
         rc.encode_uniform(enc, out, probs, 0, 0, n)
         assert np.array_equal(enc, rc.new_encoder()) and (probs == rc.HALF).all()
-        dec = rc.start_decoder(data, 0)
-        before = dec.copy()
-        assert rc.decode_uniform(dec, data, probs, 0, n) == 0
-        assert np.array_equal(dec, before) and (probs == rc.HALF).all()
+        reader = rc.reader_at(data, 0)
+        value, after = rc.read_uniform(reader, data, probs, 0, n)
+        assert value == 0 and after == reader and (probs == rc.HALF).all()
 
 
 def test_an_integer_out_of_range_is_refused_not_coded():

@@ -113,7 +113,7 @@ export class RangeDecoder {
     return node - (1 << nBits);
   }
 
-  /** Adaptive Exp-Golomb (range_coder.decode_integer). */
+  /** Adaptive Exp-Golomb (range_coder.read_integer). */
   integer(probs, base, signed) {
     let exponent = 0;
     while (exponent < MAX_EXPONENT && this.bit(probs, base + exponent)) exponent++;
@@ -135,7 +135,7 @@ export class RangeDecoder {
     return magnitude;
   }
 
-  /** A value in [0, n), n <= 2^32 (range_coder.decode_uniform): 0, reading nothing,
+  /** A value in [0, n), n <= 2^32 (range_coder.read_uniform): 0, reading nothing,
    * for n <= 1. */
   uniform(probs, base, n) {
     if (n <= 1) return 0;

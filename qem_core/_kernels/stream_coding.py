@@ -1561,26 +1561,23 @@ def decode_connectivity(
                             x = ys[step]
                 if not (xl >= 0 or xr >= 0):
                     first_forward = forward
-                escaped = 0
-                if x < 0:
+                if x < 0:  # not the walk's step: escaped to a back index, or a neighbour
                     escaped, reader = rc.read_bit(reader, data, probs, _ESCAPE_SLOT)
-                if x >= 0:
-                    pass
-                elif escaped:
-                    b, reader = rc.read_integer(reader, data, probs, _BACK_SLOTS, False)
-                    if b > t:
-                        status = BAD_BACK
+                    if escaped:
+                        b, reader = rc.read_integer(reader, data, probs, _BACK_SLOTS, False)
+                        if b > t:
+                            status = BAD_BACK
+                            break
+                        x = t - b
+                    elif nn > 0:
+                        n_index = min(nn, ESCAPE)
+                        third, reader = rc.read_uniform(
+                            reader, data, probs, _third_row(n_index), n_index
+                        )
+                        x = nb[third]
+                    else:
+                        status = BAD_THIRD
                         break
-                    x = t - b
-                elif nn > 0:
-                    n_index = min(nn, ESCAPE)
-                    third, reader = rc.read_uniform(
-                        reader, data, probs, _third_row(n_index), n_index
-                    )
-                    x = nb[third]
-                else:
-                    status = BAD_THIRD
-                    break
                 r = code % 3
                 corner[r] = s if forward else t
                 corner[(r + 1) % 3] = t if forward else s

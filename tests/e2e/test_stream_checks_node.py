@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import struct
-import subprocess
 import zlib
 from pathlib import Path
 
@@ -33,7 +32,7 @@ from tests.unit.test_stream import _disc, off_grid_frame, one_vertex_frame
 from tests.unit.test_stream_wedges import hub_wedge_frame
 from tests.wedge_meshes import seamed_mesh, with_wedge_arrays
 
-from .test_viewer import WEB, pm_digest, require_node, run_refine_js
+from .test_viewer import WEB, pm_digest, run_node_script, run_refine_js
 
 
 @pytest.fixture(scope="module")
@@ -165,20 +164,13 @@ try {
 
 def _base_mesh_errors(tmp_path, blobs: list[bytes]) -> list[str | None]:
     """What the viewer's decodeBaseMesh answers for each msgpack level (None: read)."""
-    node = require_node()
-    driver = tmp_path / "driver.mjs"
-    driver.write_text(_BASE_DRIVER)
     answers = []
     for blob in blobs:
         (tmp_path / "base.msgpack").write_bytes(blob)
-        done = subprocess.run(
-            [node, str(driver), str(WEB / "js" / "refine.js"), str(tmp_path / "base.msgpack")],
-            capture_output=True,
-            text=True,
-            timeout=120,
+        printed = run_node_script(
+            tmp_path, _BASE_DRIVER, WEB / "js" / "refine.js", tmp_path / "base.msgpack"
         )
-        assert done.returncode == 0, done.stderr
-        answers.append(json.loads(done.stdout)["error"])
+        answers.append(json.loads(printed)["error"])
     return answers
 
 
@@ -295,19 +287,13 @@ def test_frames_before_a_bad_length_are_cut_in_any_chunking(tmp_path, pm):
     """Regression: in one chunk with a frame length past the limit, the good frames
     before it were lost with the error (one frame a chunk, they were refined): the
     viewer's level depended on how the bytes arrived. iter_frames yields them first too."""
-    node = require_node()
     good = list(iter_frames(encode_split_frames(pm, pm.n_base, pm.n_base + 20,
                                                 splits_per_frame=10)))[:2]
     stream = b"".join(_frame(payload) for payload in good) + struct.pack("<I", 1 << 30)
     (tmp_path / "splits.bin").write_bytes(stream)
-    driver = tmp_path / "cutter.mjs"
-    driver.write_text(_CUTTER_DRIVER)
-    done = subprocess.run(
-        [node, str(driver), str(WEB / "js" / "refine.js"), str(tmp_path / "splits.bin")],
-        capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
-    assert done.returncode == 0, done.stderr
-    answer = json.loads(done.stdout)
+    answer = json.loads(
+        run_node_script(tmp_path, _CUTTER_DRIVER, WEB / "js" / "refine.js", tmp_path / "splits.bin")
+    )
     assert answer["payloads"] == [len(payload) for payload in good]
     assert answer["error"].startswith("WireFormatError: split frame declares 1073741824 bytes")
     python = []

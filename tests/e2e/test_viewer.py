@@ -95,6 +95,20 @@ def require_node() -> str:
     return node
 
 
+def run_node_script(tmp_path: Path, source: str, *arguments: object, timeout: int = 120) -> str:
+    """What node prints running `source` (an ES module, written to tmp_path) with
+    `arguments`; fails the test, with node's stderr, if it exits otherwise than 0."""
+    node = require_node()
+    script = tmp_path / "driver.mjs"
+    script.write_text(source)
+    done = subprocess.run(
+        [node, str(script), *map(str, arguments)],
+        capture_output=True, text=True, timeout=timeout, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    return done.stdout
+
+
 def require_wasm() -> Path:
     """The viewer's WebAssembly split decoder, which `make install` builds."""
     if not WASM.is_file():
@@ -262,7 +276,6 @@ def run_refine_js(
     the stream. The frames are decoded twice, by refine.js and by the WebAssembly split
     decoder (refine.wasm, with refine.js's wedges.js for a mesh's wedges), which must
     agree on every level and refusal."""
-    node = require_node()
     start = pm.n_base if start is None else start
     base = encode_level(pm, start, "msgpack").content
     (tmp_path / "base.msgpack").write_bytes(base)
@@ -271,16 +284,9 @@ def run_refine_js(
     (tmp_path / "splits.bin").write_bytes(stream)
     plan = {"n_full": pm.n_full, "f_full": pm.n_faces_full, "visit": visit}
     (tmp_path / "plan.json").write_text(json.dumps(plan))
-    driver = tmp_path / "driver.mjs"
-    driver.write_text(_NODE_DRIVER)
-    done = subprocess.run(
-        [node, str(driver), str(WEB / "js" / "refine.js"), str(tmp_path), str(require_wasm())],
-        capture_output=True,
-        text=True,
-        timeout=120,
+    answers = json.loads(
+        run_node_script(tmp_path, _NODE_DRIVER, WEB / "js" / "refine.js", tmp_path, require_wasm())
     )
-    assert done.returncode == 0, done.stderr
-    answers = json.loads(done.stdout)
     in_js, in_wasm = answers["js"], answers["wasm"]
     assert in_js["decoder"] == "js"
     assert in_wasm.pop("decoder") == "wasm"
@@ -348,20 +354,15 @@ console.log(JSON.stringify(runs));
 def test_stream_splits_reads_every_frame_and_counts_its_bytes(tmp_path):
     """refine.js's streamSplits over HTTP, with onBytes and without: every frame in order,
     and the bytes read (its result, and onFrame's after each frame) counted either way."""
-    node = require_node()
     vertices, faces = icosphere(2, jitter=0.05, seed=3)
     pm = qem_core.build(vertices, faces)
     stream = b"".join(encode_split_frames(pm, pm.n_base, pm.n_full, splits_per_frame=8))
     (tmp_path / "splits.bin").write_bytes(stream)
-    driver = tmp_path / "driver.mjs"
-    driver.write_text(_STREAM_SPLITS_DRIVER)
-    done = subprocess.run(
-        [node, str(driver), str(WEB / "js" / "refine.js"), str(tmp_path / "splits.bin")],
-        capture_output=True, text=True, timeout=60, check=False,
-    )  # fmt: skip
-    assert done.returncode == 0, done.stderr
+    printed = run_node_script(
+        tmp_path, _STREAM_SPLITS_DRIVER, WEB / "js" / "refine.js", tmp_path / "splits.bin"
+    )
     ends = list(range(pm.n_base + 8, pm.n_full, 8)) + [pm.n_full]
-    for run in json.loads(done.stdout):
+    for run in json.loads(printed):
         assert run["frames"] == ends
         assert run["bytes"] == len(stream) and run["seen"][-1] == len(stream), run
         assert run["seen"] == sorted(run["seen"]) and run["seen"][0] > 0, run

@@ -15,7 +15,6 @@ decoders wherever refine.js runs under node (test_viewer.run_refine_js).
 from __future__ import annotations
 
 import json
-import subprocess
 from pathlib import Path
 
 import msgpack
@@ -27,7 +26,7 @@ from qem_core.stream import encode_split_frames
 from tests.tiny_meshes import icosphere, perforated_icosphere
 from tests.wedge_meshes import seamed_mesh
 
-from .test_viewer import WEB, require_node, require_wasm, sealed
+from .test_viewer import WEB, require_node, require_wasm, run_node_script, sealed
 
 # Decodes every stream of the case with refine.js and with refine.wasm; one line each:
 # both outcomes (the refusal and the vertices held, or a digest of the full level).
@@ -121,7 +120,7 @@ MESHES = {
 
 @pytest.mark.parametrize("make", MESHES.values(), ids=MESHES.keys())
 def test_wasm_decoder_agrees_with_refine_js_on_damaged_frames(make, tmp_path, reading_ahead):
-    node = require_node()
+    require_node()  # before the meshes are built
     import qem_core
 
     made = make()
@@ -138,15 +137,11 @@ def test_wasm_decoder_agrees_with_refine_js_on_damaged_frames(make, tmp_path, re
     (tmp_path / "base.msgpack").write_bytes(encode_level(pm, pm.n_base, "msgpack").content)
     plan = {"n_full": pm.n_full, "f_full": pm.n_faces_full, "streams": STREAMS}
     (tmp_path / "plan.json").write_text(json.dumps(plan))
-    driver = tmp_path / "driver.mjs"
-    driver.write_text(_DRIVER)
-    done = subprocess.run(
-        [node, str(driver), str(WEB / "js" / "refine.js"), str(require_wasm()),
-         str(reading_ahead), str(tmp_path)],
-        capture_output=True, text=True, timeout=300, check=False,
+    printed = run_node_script(
+        tmp_path, _DRIVER, WEB / "js" / "refine.js", require_wasm(), reading_ahead, tmp_path,
+        timeout=300,
     )  # fmt: skip
-    assert done.returncode == 0, done.stderr
-    outcomes = [json.loads(line) for line in done.stdout.splitlines()]
+    outcomes = [json.loads(line) for line in printed.splitlines()]
     assert len(outcomes) == STREAMS
     refused = 0
     for i, all_three in enumerate(outcomes):
@@ -162,9 +157,8 @@ def test_wasm_decoder_agrees_with_refine_js_on_damaged_frames(make, tmp_path, re
 def test_wasm_decoder_refuses_a_base_mesh_face_past_its_vertices(tmp_path):
     """The base mesh's faces are checked in C too (the page's decodeBaseMesh checks them
     first; the C decoder does not rely on it)."""
-    node = require_node()
-    script = tmp_path / "base.mjs"
-    script.write_text(
+    printed = run_node_script(
+        tmp_path,
         """
 import { readFileSync } from "node:fs";
 import { pathToFileURL } from "node:url";
@@ -179,12 +173,10 @@ try {
 } catch (error) {
   console.log(`${error.name}: ${error.message}`);
 }
-"""
+""",
+        WEB / "js" / "wasm_splits.js",
+        require_wasm(),
+        timeout=60,
     )
-    done = subprocess.run(
-        [node, str(script), str(WEB / "js" / "wasm_splits.js"), str(require_wasm())],
-        capture_output=True, text=True, timeout=60, check=False,
-    )  # fmt: skip
-    assert done.returncode == 0, done.stderr
     refusal = "WireFormatError: base mesh: a face names a vertex that does not exist"
-    assert done.stdout.strip() == refusal
+    assert printed.strip() == refusal

@@ -25,6 +25,9 @@ BUCKET = "qem"
 ACCESS_KEY = "qem-test-access"
 SECRET_KEY = "qem-test-secret-key"
 START_TIMEOUT_S = 60
+# Big enough to be stored in a volume, not inline in the filer's record of it.
+_CANARY_KEY = ".canary"
+_CANARY = bytes(range(256)) * 1024
 # Every port `weed mini` opens (defaults are fixed numbers: two servers would collide).
 _PORTS = (
     "master.port master.port.grpc volume.port volume.port.grpc volume.port.public "
@@ -50,6 +53,7 @@ class S3Server:
         self.endpoint = f"http://127.0.0.1:{self.ports['s3.port']}"
         self.process: subprocess.Popen | None = None
         self.counter = 0
+        self._canary_written = False
 
     def start(self) -> S3Server:
         (self.root / "data").mkdir()
@@ -88,7 +92,7 @@ class S3Server:
                 log = (self.root / "out.log").read_text(errors="replace")
                 raise RuntimeError(f"weed mini exited: {log[-2000:]}")
             try:
-                obstore.put(store, ".ready", b"")
+                self._check(obstore, store)
                 return
             except Exception as error:  # noqa: BLE001 - not up yet
                 if time.monotonic() > deadline:
@@ -97,6 +101,20 @@ class S3Server:
                         f"SeaweedFS did not answer in {START_TIMEOUT_S} s: {error}"
                     ) from error
                 time.sleep(0.25)
+
+    def _check(self, obstore, store) -> None:
+        """Raises unless the store takes a write and serves what it held before.
+
+        An empty object lives in the filer's records alone, so a put of one answers as
+        soon as the S3 gateway does; an object with data is read from a volume server,
+        which after `resume` may come up seconds later on a loaded machine. Only when
+        the canary written at the first start reads back is the store really back."""
+        if not self._canary_written:
+            obstore.put(store, _CANARY_KEY, _CANARY)
+            self._canary_written = True
+        obstore.put(store, ".ready", b"")
+        if bytes(obstore.get(store, _CANARY_KEY).bytes()) != _CANARY:
+            raise RuntimeError("the canary read back changed")
 
     def env(self, prefix: str | None = None) -> dict[str, str]:
         """Variables that point a qem-lod process at a fresh prefix of the bucket."""

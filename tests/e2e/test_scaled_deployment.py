@@ -169,7 +169,8 @@ def test_a_part_down_is_a_503_with_nothing_half_written_then_recovery(
                 blobs = S3BlobStore(bucket, prefix, tmp_path / "spool")
                 assert list(blobs.keys("uploads/")) == [f"uploads/{kept}"]
             answer = http.get(f"/v1/meshes/{kept}/lod", params={"format": "glb"})
-            assert answer.status_code == 200 and answer.content.startswith(b"glTF")
+            assert answer.status_code == 200, answer.text
+            assert answer.content.startswith(b"glTF")
     finally:
         server.stop()
 

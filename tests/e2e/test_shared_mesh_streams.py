@@ -26,6 +26,7 @@ from .conftest import shared_mesh
 from .test_viewer import (
     assert_levels_on_screen_are_served,
     chromium_page,
+    closed_and_oriented,
     open_at_full_detail,
     pm_digest,
     pm_wedges_digest,
@@ -91,7 +92,10 @@ def test_refine_js_reaches_every_frame_boundary_exactly_down_and_up(built, name,
     between = [pm.n_base + 1, (pm.n_base + pm.n_full) // 2, pm.n_full - 1]
     up = sorted({pm.n_base, *ends, *between})
     visit = up[::-1] + up
-    levels = run_refine_js(tmp_path, pm, visit, stream=mesh.stream)
+    # A closed mesh is closed at every level (contractions that keep its topology),
+    # and the viewer culls its back faces throughout.
+    closed = True if closed_and_oriented(pm.lod(pm.n_full)[1]) else None
+    levels = run_refine_js(tmp_path, pm, visit, stream=mesh.stream, closed=closed)
     assert "error" not in levels, levels
     has_wedges = quantised_wedges(pm, pm.n_base) is not None
     for n in visit:
@@ -107,7 +111,7 @@ def test_refine_js_reaches_every_frame_boundary_exactly_down_and_up(built, name,
 
 
 @pytest.mark.parametrize("server", ["embedded"], indirect=True)
-def test_the_viewer_decodes_every_shared_mesh_in_its_worker_exactly(server, tmp_path):
+def test_the_viewer_decodes_every_shared_mesh_in_its_worker_exactly(server, built, tmp_path):
     """The viewer as a user opens it: each mesh uploaded, streamed from its stored frames
     and decoded in the page's worker (in WebAssembly, with refine.js's wedges.js for the
     wedge keys of a mesh that has them); the levels on screen are the server's."""
@@ -117,6 +121,9 @@ def test_the_viewer_decodes_every_shared_mesh_in_its_worker_exactly(server, tmp_
             state = open_at_full_detail(page, server.url, info["id"])
             assert state["failure"] is None, (name, state["failure"])
             assert state["decoder"] == "wasm", name  # every mesh's splits, wedges or none
+            # Back faces culled for a closed mesh (spot, igea...), not for bunny's holes.
+            pm = built(name).pm
+            assert state["backFacesCulled"] == closed_and_oriented(pm.lod(pm.n_full)[1]), name
             url = f"{server.url}/v1/meshes/{info['id']}"
             n_full, n_base = info["vertices"], info["min_vertices"]
             levels = (n_full, (n_base + n_full) // 2, n_base, n_base + 1, n_full)

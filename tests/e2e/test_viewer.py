@@ -230,7 +230,12 @@ function visit(held, n) {
   held.setLevel(n);
   const positions = Uint16Array.from(held.positions.subarray(0, 3 * held.level));
   const faces = held.indices.slice(0, 3 * held.nFaces);
-  const out = { level: held.level, faces: held.nFaces, digest: digest(positions, faces) };
+  const out = {
+    level: held.level,
+    faces: held.nFaces,
+    digest: digest(positions, faces),
+    closed: held.closedAt(held.level),
+  };
   const w = held.wedges;
   if (!w) return out;
   const corners = Uint32Array.from(w.cornerWedge.subarray(0, 3 * held.nFaces));
@@ -263,19 +268,32 @@ console.log(JSON.stringify(answers));
 """
 
 
+def closed_and_oriented(faces: np.ndarray) -> bool:
+    """Every edge in two faces that go along it in opposite directions: each directed
+    edge once, and its reverse once."""
+    faces = np.asarray(faces)
+    directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    forward = np.unique(directed, axis=0)
+    backward = np.unique(directed[:, ::-1], axis=0)
+    return len(faces) > 0 and len(forward) == len(directed) and np.array_equal(forward, backward)
+
+
 def run_refine_js(
     tmp_path: Path,
     pm: ProgressiveMesh,
     visit: list[int],
     stream: bytes | None = None,
     start: int | None = None,
+    closed: bool | None = None,
 ) -> dict:
     """Levels visited by refine.js (level -> level, faces, digest), after it read
     `stream` (default: pm's whole split stream, two splits a frame) from lod(`start`)
     (default: the base); or {"error": ..., "held": vertex count received} if it refused
     the stream. The frames are decoded twice, by refine.js and by the WebAssembly split
     decoder (refine.wasm, with refine.js's wedges.js for a mesh's wedges), which must
-    agree on every level and refusal."""
+    agree on every level and refusal. A level that refine.js takes for closed and
+    oriented (`closedAt`, where the viewer culls back faces) must be; with `closed`,
+    every level visited must be taken for that."""
     start = pm.n_base if start is None else start
     base = encode_level(pm, start, "msgpack").content
     (tmp_path / "base.msgpack").write_bytes(base)
@@ -298,6 +316,10 @@ def run_refine_js(
     for n, level in in_js["levels"].items():
         # The page's levels (records of splits decoded in its worker) are the decoder's.
         assert level.pop("mirror") == level, f"level {n}: the records do not rebuild it"
+        taken_closed = level.pop("closed")
+        if taken_closed:
+            assert closed_and_oriented(pm.lod(int(n))[1]), f"level {n} is not closed"
+        assert closed is None or taken_closed == closed, f"level {n}: closed {taken_closed}"
         levels[int(n)] = level
     return levels
 
@@ -385,7 +407,8 @@ def test_refine_js_moves_down_and_up_through_every_level(tmp_path):
     pm = qem_core.build(vertices, faces)
     down = list(range(pm.n_full, pm.n_base - 1, -1))
     visit = down + list(range(pm.n_base + 1, pm.n_full + 1, 7)) + [pm.n_full]
-    levels = run_refine_js(tmp_path, pm, visit)
+    assert closed_and_oriented(pm.lod(pm.n_full)[1])
+    levels = run_refine_js(tmp_path, pm, visit, closed=True)
     assert len(levels) == pm.n_full - pm.n_base + 1
     for n in down:
         assert levels[n] == {"level": n, "faces": pm.n_faces(n), "digest": pm_digest(pm, n)}
@@ -416,7 +439,8 @@ def test_refine_js_decodes_built_meshes_exactly(tmp_path, mesh):
         stream = None
         if splits_per_frame is None:
             stream = b"".join(encode_split_frames(pm, pm.n_base, pm.n_full))
-        levels = run_refine_js(tmp_path, pm, visit, stream=stream)
+        # Each has a border at every level: drawn from both sides.
+        levels = run_refine_js(tmp_path, pm, visit, stream=stream, closed=False)
         for n in visit:
             assert levels[n] == {"level": n, "faces": pm.n_faces(n), "digest": pm_digest(pm, n)}
 

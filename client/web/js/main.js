@@ -560,6 +560,7 @@ window.qemViewer = {
       framesOffScreen: scene?.framesOffScreen ?? 0, // the mesh's frames drawn off screen (scene.js)
       framesPolished: scene?.framesPolished ?? 0, // its views at rest drawn again multisampled
       drawingOffScreen: scene?.drawing ?? false, // a frame off screen is drawn, not yet shown
+      backFacesCulled: scene?.backFacesCulled ?? null, // the last frame drew front faces only
     };
   },
   /** Draw a software GL's frames off screen when they would take over `ms` (0: all). */

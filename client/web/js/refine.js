@@ -764,6 +764,31 @@ class SplitState {
   }
 }
 
+/** Whether the first nFaces faces of `indices` (rows of three vertices below nVertices)
+ * are closed surfaces with every face turned the same way: each edge in two faces that
+ * go along it in opposite directions. Seen from outside, such a mesh's back faces lie
+ * behind its front ones. */
+export function closedAndOriented(indices, nFaces, nVertices) {
+  if (nFaces === 0 || nVertices > 2 ** 25) return false; // keys below stay exact
+  // Each directed edge as its undirected edge's key, doubled, plus 1 when it goes down:
+  // closed and oriented, the sorted keys come in pairs 2e, 2e + 1 (then each pair once,
+  // the next one starting at an even key past 2e + 1).
+  const keys = new Float64Array(3 * nFaces);
+  for (let f = 0; f < nFaces; f++) {
+    for (let j = 0; j < 3; j++) {
+      const a = indices[3 * f + j];
+      const b = indices[3 * f + ((j + 1) % 3)];
+      keys[3 * f + j] = a < b ? 2 * (a * nVertices + b) : 2 * (b * nVertices + a) + 1;
+    }
+  }
+  keys.sort();
+  if (keys.length % 2) return false;
+  for (let i = 0; i < keys.length; i += 2) {
+    if (keys[i] % 2 !== 0 || keys[i + 1] !== keys[i] + 1) return false;
+  }
+  return true;
+}
+
 /**
  * The mesh at any received level, in buffers allocated once for the full mesh.
  *
@@ -823,6 +848,29 @@ export class ProgressiveLevels {
     }
     this.texture = base.texture;
     this.materials = base.materials;
+    // The levels up to closedTo are closed surfaces with every face turned one way, so a
+    // view from outside sees no back face (scene.js culls them); -1 for none.
+    this.closedTo = closedAndOriented(base.indices, base.nFaces, base.nVertices) ? this.nBase : -1;
+    this.opened = false;
+  }
+
+  /** Whether level n is known to be a closed surface with its faces turned one way: the
+   * base mesh is, and every split up to n added two faces. Such a split cuts a closed
+   * fan into two, its wings, and so keeps the surface closed; any other (at a border,
+   * of a pair that shares no edge, a non-manifold one) may open it, and the levels from
+   * it on are not known to be closed. */
+  closedAt(n) {
+    return n <= this.closedTo;
+  }
+
+  /** Move closedTo over the splits received since (addFrame, addRecord). */
+  extendClosed() {
+    if (this.closedTo < 0 || this.opened) return;
+    let k = this.closedTo - this.nBase;
+    const end = this.received - this.nBase;
+    while (k < end && this.levelFaces[k + 1] - this.levelFaces[k] === 2) k++;
+    this.closedTo = this.nBase + k;
+    this.opened = k < end; // split k may open it: closedTo stays
   }
 
   /** Which decoder decodes the frames: "wasm", "js", or null (levels that take records). */
@@ -877,6 +925,7 @@ export class ProgressiveLevels {
       throw error;
     }
     this.received = nTo;
+    this.extendClosed();
   }
 
   /** The splits that refine level nFrom to nTo (both received), as copies: what a
@@ -922,6 +971,7 @@ export class ProgressiveLevels {
     this.indices.set(record.faces, 3 * firstFace);
     this.wedges?.addRecord(record.wedges, a, b, firstFace);
     this.received = nTo;
+    this.extendClosed();
   }
 
   /** The frame's splits against the received level (stream_coding.decode_connectivity),

@@ -204,7 +204,8 @@ def write_report(
         "",
         f"Mesh: {info['vertices']} vertices, {info['faces']} faces; base mesh "
         f"{info['min_vertices']} vertices. The viewer fetches the base mesh "
-        "(`lod?vertices=min&format=msgpack`), then `splits?from=min&to=full` streamed.",
+        "(`lod?vertices=1&format=msgpack`, served as the base's count, asked for beside "
+        "the mesh's metadata), then `splits?from=min&to=full` streamed.",
         "",
         "With WebGL on the CPU the viewer draws its frames with one sample each and a view "
         "at rest once more with four (*full polished*: the full mesh so drawn, 0.5 s after "

@@ -26,7 +26,7 @@ from .conftest import shared_mesh
 from .test_viewer import (
     assert_levels_on_screen_are_served,
     chromium_page,
-    closed_and_oriented,
+    closed_outwards,
     open_at_full_detail,
     pm_digest,
     pm_wedges_digest,
@@ -94,7 +94,7 @@ def test_refine_js_reaches_every_frame_boundary_exactly_down_and_up(built, name,
     visit = up[::-1] + up
     # A closed mesh is closed at every level (contractions that keep its topology),
     # and the viewer culls its back faces throughout.
-    closed = True if closed_and_oriented(pm.lod(pm.n_full)[1]) else None
+    closed = True if closed_outwards(*pm.lod(pm.n_full)) else None
     levels = run_refine_js(tmp_path, pm, visit, stream=mesh.stream, closed=closed)
     assert "error" not in levels, levels
     has_wedges = quantised_wedges(pm, pm.n_base) is not None
@@ -123,7 +123,7 @@ def test_the_viewer_decodes_every_shared_mesh_in_its_worker_exactly(server, buil
             assert state["decoder"] == "wasm", name  # every mesh's splits, wedges or none
             # Back faces culled for a closed mesh (spot, igea...), not for bunny's holes.
             pm = built(name).pm
-            assert state["backFacesCulled"] == closed_and_oriented(pm.lod(pm.n_full)[1]), name
+            assert state["backFacesCulled"] == closed_outwards(*pm.lod(pm.n_full)), name
             url = f"{server.url}/v1/meshes/{info['id']}"
             n_full, n_base = info["vertices"], info["min_vertices"]
             levels = (n_full, (n_base + n_full) // 2, n_base, n_base + 1, n_full)

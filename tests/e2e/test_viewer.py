@@ -268,14 +268,18 @@ console.log(JSON.stringify(answers));
 """
 
 
-def closed_and_oriented(faces: np.ndarray) -> bool:
-    """Every edge in two faces that go along it in opposite directions: each directed
-    edge once, and its reverse once."""
+def closed_outwards(vertices: np.ndarray, faces: np.ndarray) -> bool:
+    """Every edge in two faces that go along it in opposite directions (each directed
+    edge once, and its reverse once), wound so that they enclose a positive volume."""
     faces = np.asarray(faces)
     directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     forward = np.unique(directed, axis=0)
     backward = np.unique(directed[:, ::-1], axis=0)
-    return len(faces) > 0 and len(forward) == len(directed) and np.array_equal(forward, backward)
+    if not (len(faces) > 0 and len(forward) == len(directed)):
+        return False
+    corners = np.asarray(vertices, np.float64)[faces]
+    volume = np.einsum("ij,ij->", corners[:, 0], np.cross(corners[:, 1], corners[:, 2]))
+    return np.array_equal(forward, backward) and volume > 0
 
 
 def run_refine_js(
@@ -291,9 +295,9 @@ def run_refine_js(
     (default: the base); or {"error": ..., "held": vertex count received} if it refused
     the stream. The frames are decoded twice, by refine.js and by the WebAssembly split
     decoder (refine.wasm, with refine.js's wedges.js for a mesh's wedges), which must
-    agree on every level and refusal. A level that refine.js takes for closed and
-    oriented (`closedAt`, where the viewer culls back faces) must be; with `closed`,
-    every level visited must be taken for that."""
+    agree on every level and refusal. A level that refine.js takes for closed with its
+    faces turned outwards (`closedAt`, where the viewer culls back faces) must be; with
+    `closed`, every level visited must be taken for that."""
     start = pm.n_base if start is None else start
     base = encode_level(pm, start, "msgpack").content
     (tmp_path / "base.msgpack").write_bytes(base)
@@ -318,7 +322,7 @@ def run_refine_js(
         assert level.pop("mirror") == level, f"level {n}: the records do not rebuild it"
         taken_closed = level.pop("closed")
         if taken_closed:
-            assert closed_and_oriented(pm.lod(int(n))[1]), f"level {n} is not closed"
+            assert closed_outwards(*pm.lod(int(n))), f"level {n} is not closed"
         assert closed is None or taken_closed == closed, f"level {n}: closed {taken_closed}"
         levels[int(n)] = level
     return levels
@@ -407,11 +411,20 @@ def test_refine_js_moves_down_and_up_through_every_level(tmp_path):
     pm = qem_core.build(vertices, faces)
     down = list(range(pm.n_full, pm.n_base - 1, -1))
     visit = down + list(range(pm.n_base + 1, pm.n_full + 1, 7)) + [pm.n_full]
-    assert closed_and_oriented(pm.lod(pm.n_full)[1])
+    assert closed_outwards(*pm.lod(pm.n_full))
     levels = run_refine_js(tmp_path, pm, visit, closed=True)
     assert len(levels) == pm.n_full - pm.n_base + 1
     for n in down:
         assert levels[n] == {"level": n, "faces": pm.n_faces(n), "digest": pm_digest(pm, n)}
+
+
+def test_refine_js_draws_an_inside_out_mesh_from_both_sides(tmp_path):
+    """Closed and oriented, but wound inwards: culling would hide its near side."""
+    vertices, faces = icosphere(2, jitter=0.05, seed=3)
+    pm = qem_core.build(vertices, faces[:, ::-1])
+    assert not closed_outwards(*pm.lod(pm.n_full))
+    assert closed_outwards(pm.lod(pm.n_full)[0], pm.lod(pm.n_full)[1][:, ::-1])
+    run_refine_js(tmp_path, pm, [pm.n_base, pm.n_full], closed=False)
 
 
 def test_refine_js_takes_the_rarer_coding_paths_exactly(tmp_path):

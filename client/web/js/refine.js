@@ -789,6 +789,22 @@ export function closedAndOriented(indices, nFaces, nVertices) {
   return true;
 }
 
+/** Six times the volume that the first nFaces faces enclose, positive when they are
+ * wound counter-clockwise seen from outside (glTF's and three.js's front faces). */
+export function enclosedVolume(positions, indices, nFaces) {
+  let volume = 0;
+  for (let f = 0; f < nFaces; f++) {
+    const a = 3 * indices[3 * f];
+    const b = 3 * indices[3 * f + 1];
+    const c = 3 * indices[3 * f + 2];
+    const [ax, ay, az] = [positions[a], positions[a + 1], positions[a + 2]];
+    const [bx, by, bz] = [positions[b], positions[b + 1], positions[b + 2]];
+    const [cx, cy, cz] = [positions[c], positions[c + 1], positions[c + 2]];
+    volume += ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz) + az * (bx * cy - by * cx);
+  }
+  return volume;
+}
+
 /**
  * The mesh at any received level, in buffers allocated once for the full mesh.
  *
@@ -848,14 +864,17 @@ export class ProgressiveLevels {
     }
     this.texture = base.texture;
     this.materials = base.materials;
-    // The levels up to closedTo are closed surfaces with every face turned one way, so a
-    // view from outside sees no back face (scene.js culls them); -1 for none.
-    this.closedTo = closedAndOriented(base.indices, base.nFaces, base.nVertices) ? this.nBase : -1;
+    // The levels up to closedTo are closed surfaces with every face turned outwards, so
+    // a view from outside sees no back face (scene.js culls them); -1 for none. A mesh
+    // turned inside out (its faces wound inwards, a negative volume) is drawn from both
+    // sides, as any other, so that it shows its near side.
+    const closed = closedAndOriented(base.indices, base.nFaces, base.nVertices);
+    this.closedTo = closed && enclosedVolume(base.positions, base.indices, base.nFaces) > 0 ? this.nBase : -1;
     this.opened = false;
   }
 
-  /** Whether level n is known to be a closed surface with its faces turned one way: the
-   * base mesh is, and every split up to n added two faces. Such a split cuts a closed
+  /** Whether level n is known to be a closed surface with its faces turned outwards:
+   * the base mesh is, and every split up to n added two faces. Such a split cuts a closed
    * fan into two, its wings, and so keeps the surface closed; any other (at a border,
    * of a pair that shares no edge, a non-manifold one) may open it, and the levels from
    * it on are not known to be closed. */

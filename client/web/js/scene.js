@@ -382,13 +382,14 @@ export class MeshScene {
   }
 
   /** Draw only the faces turned to the camera while the level is a closed surface
-   * (ProgressiveLevels.closedAt): from outside it the picture is the same, and its back
-   * faces cost a software GL about a fifth of its frame (dragon's full mesh: 186 ms
-   * drawn from both sides, 145 ms culled). A level with a border is drawn from both
-   * sides, so that what is seen through a hole is its inside. The side is part of the
-   * material's program: a level that opens a closed mesh (rare: a mesh is closed at
-   * every level or at none, but for pair contractions) draws with another one. Dragon's
-   * full detail came 12 % sooner (docs/performance.md). */
+   * turned outwards (ProgressiveLevels.closedAt): from outside it the picture is the
+   * same, and its back faces cost a software GL about a fifth of its frame (dragon's
+   * full mesh: 186 ms drawn from both sides, 145 ms culled). A level with a border, or
+   * one turned inside out, is drawn from both sides, so that what is seen through a
+   * hole is its inside, and an inside-out mesh shows its near side. The side is part
+   * of the material's program: a level that opens a closed mesh (rare: a mesh is
+   * closed at every level or at none, but for pair contractions) draws with another
+   * one. Dragon's full detail came 12 % sooner (docs/performance.md). */
   cullBackFaces(closed) {
     const side = closed ? THREE.FrontSide : THREE.DoubleSide;
     const material = this.mesh.material;

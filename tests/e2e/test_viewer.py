@@ -422,8 +422,9 @@ def test_refine_js_draws_an_inside_out_mesh_from_both_sides(tmp_path):
     """Closed and oriented, but wound inwards: culling would hide its near side."""
     vertices, faces = icosphere(2, jitter=0.05, seed=3)
     pm = qem_core.build(vertices, faces[:, ::-1])
-    assert not closed_outwards(*pm.lod(pm.n_full))
-    assert closed_outwards(pm.lod(pm.n_full)[0], pm.lod(pm.n_full)[1][:, ::-1])
+    full_vertices, full_faces = pm.lod(pm.n_full)
+    assert not closed_outwards(full_vertices, full_faces)
+    assert closed_outwards(full_vertices, full_faces[:, ::-1])
     run_refine_js(tmp_path, pm, [pm.n_base, pm.n_full], closed=False)
 
 

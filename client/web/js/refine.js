@@ -768,7 +768,7 @@ class SplitState {
  * are closed surfaces with every face turned the same way: each edge in two faces that
  * go along it in opposite directions. Seen from outside, such a mesh's back faces lie
  * behind its front ones. */
-export function closedAndOriented(indices, nFaces, nVertices) {
+function closedAndOriented(indices, nFaces, nVertices) {
   if (nFaces === 0 || nVertices > 2 ** 25) return false; // keys below stay exact
   // Each directed edge as its undirected edge's key, doubled, plus 1 when it goes down:
   // closed and oriented, the sorted keys come in pairs 2e, 2e + 1 (then each pair once,
@@ -791,16 +791,17 @@ export function closedAndOriented(indices, nFaces, nVertices) {
 
 /** Six times the volume that the first nFaces faces enclose, positive when they are
  * wound counter-clockwise seen from outside (glTF's and three.js's front faces). */
-export function enclosedVolume(positions, indices, nFaces) {
+function enclosedVolume(positions, indices, nFaces) {
   let volume = 0;
   for (let f = 0; f < nFaces; f++) {
     const a = 3 * indices[3 * f];
     const b = 3 * indices[3 * f + 1];
     const c = 3 * indices[3 * f + 2];
-    const [ax, ay, az] = [positions[a], positions[a + 1], positions[a + 2]];
-    const [bx, by, bz] = [positions[b], positions[b + 1], positions[b + 2]];
-    const [cx, cy, cz] = [positions[c], positions[c + 1], positions[c + 2]];
-    volume += ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz) + az * (bx * cy - by * cx);
+    // a . (b x c), the corners' grid positions
+    volume +=
+      positions[a] * (positions[b + 1] * positions[c + 2] - positions[b + 2] * positions[c + 1]) +
+      positions[a + 1] * (positions[b + 2] * positions[c] - positions[b] * positions[c + 2]) +
+      positions[a + 2] * (positions[b] * positions[c + 1] - positions[b + 1] * positions[c]);
   }
   return volume;
 }
@@ -870,7 +871,6 @@ export class ProgressiveLevels {
     // sides, as any other, so that it shows its near side.
     const closed = closedAndOriented(base.indices, base.nFaces, base.nVertices);
     this.closedTo = closed && enclosedVolume(base.positions, base.indices, base.nFaces) > 0 ? this.nBase : -1;
-    this.opened = false;
   }
 
   /** Whether level n is known to be a closed surface with its faces turned outwards:
@@ -882,14 +882,15 @@ export class ProgressiveLevels {
     return n <= this.closedTo;
   }
 
-  /** Move closedTo over the splits received since (addFrame, addRecord). */
+  /** Move closedTo over the splits received since (addFrame, addRecord). Once it stops
+   * at a split that may open the surface, it stays there: that split ends the scan at
+   * once each time. */
   extendClosed() {
-    if (this.closedTo < 0 || this.opened) return;
+    if (this.closedTo < 0) return;
     let k = this.closedTo - this.nBase;
     const end = this.received - this.nBase;
     while (k < end && this.levelFaces[k + 1] - this.levelFaces[k] === 2) k++;
     this.closedTo = this.nBase + k;
-    this.opened = k < end; // split k may open it: closedTo stays
   }
 
   /** Which decoder decodes the frames: "wasm", "js", or null (levels that take records). */

@@ -112,7 +112,7 @@ export class MeshScene {
       metalness: 0.0,
       flatShading: !names.includes("normal"),
       vertexColors: names.includes("color"),
-      side: levels.closedAt(levels.level) ? THREE.FrontSide : THREE.DoubleSide,
+      // Its side is set at each frame, before it is drawn (cullBackFaces).
     });
     const mesh = new THREE.Mesh(geometry, material);
     mesh.frustumCulled = false; // the bounding sphere would have to follow the level
